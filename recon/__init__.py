@@ -1,0 +1,11 @@
+"""Surface reconstruction of a human body from a point cloud, by posture estimation and clustering.
+
+Works on any scanner's cloud: imports nothing from `poses`, `simulator` or `benchmarks`.
+"""
+
+
+class ReconError(ValueError):
+    """A cloud or parameter that the reconstruction cannot use."""
+
+
+__all__ = ["ReconError"]

@@ -1,0 +1,202 @@
+"""Section geometry of the body model: elliptic columns with ellipsoidal caps, and their coordinates.
+
+Each of the 11 body sections is one `SectionShape`: a column (a cylinder when both radii are equal,
+an elliptic column otherwise) along an axis from ``start`` (the proximal joint) to ``end``, closed at
+either end by a half-ellipsoid cap, or open (the column extends past that end: an extended arm whose
+end the fit could not find, paper section 2.4).
+
+The section coordinates of paper section 3 are ``(r, theta, h)``: ``h`` along the axis from ``start``
+(metres), ``theta`` around the axis from ``frame_x`` (radians, [0, 2*pi)), and ``r`` the signed
+distance from the model surface (metres, negative inside). ``r`` is measured along the ray from the
+nearest axis point, which is the exact Euclidean distance for a cylinder with hemispherical caps and
+a close approximation for elliptic columns (their radii differ by less than 2x here).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+#: The 11 body sections, in label order; the same order as ``poses.SECTIONS`` (recon reads no poses).
+SECTIONS = (
+    "head", "chest", "waist",
+    "upper_arm_l", "upper_arm_r", "forearm_l", "forearm_r",
+    "thigh_l", "thigh_r", "lower_leg_l", "lower_leg_r",
+)
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True, eq=False)
+class SectionShape:
+    """One body section of the model.
+
+    Attributes
+    ----------
+    name : str
+        One of `SECTIONS`.
+    start, end : (3,) float
+        Axis end points, metres; ``start`` is the proximal joint.
+    radii : (2,) float
+        Semi-axes (a, b) of the cross-section, metres, along ``frame_x`` and along axis x frame_x.
+    frame_x : (3,) float
+        Unit vector perpendicular to the axis: direction of ``theta = 0`` and of radius ``a``.
+    closed : (2,) bool
+        Whether the start and end caps are closed; an open end extends the column instead.
+    caps : (2,) float
+        Height of the start and end caps along the axis, metres (a hemisphere has height = radius).
+    """
+
+    name: str
+    start: np.ndarray
+    end: np.ndarray
+    radii: np.ndarray
+    frame_x: np.ndarray
+    closed: tuple = (True, True)
+    caps: np.ndarray = field(default=None)
+
+    def __post_init__(self):
+        start = np.asarray(self.start, dtype=np.float64)
+        end = np.asarray(self.end, dtype=np.float64)
+        if not np.linalg.norm(end - start) > 0:
+            raise ValueError(f"section {self.name}: start and end coincide")
+        axis = _unit(end - start)
+        fx = np.asarray(self.frame_x, dtype=np.float64)
+        fx = fx - axis * (fx @ axis)  # keep frame_x exactly perpendicular to the axis
+        if not np.linalg.norm(fx) > 1e-9:
+            raise ValueError(f"section {self.name}: frame_x is parallel to the axis")
+        radii = np.broadcast_to(np.asarray(self.radii, dtype=np.float64), (2,)).copy()
+        caps = radii.mean() if self.caps is None else self.caps
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "end", end)
+        object.__setattr__(self, "frame_x", _unit(fx))
+        object.__setattr__(self, "radii", radii)
+        object.__setattr__(self, "closed", tuple(bool(c) for c in self.closed))
+        object.__setattr__(self, "caps", np.broadcast_to(np.asarray(caps, dtype=np.float64), (2,)).copy())
+
+    # -- derived geometry ---------------------------------------------------------------------
+    @property
+    def axis(self) -> np.ndarray:
+        """(3,) unit vector from start to end."""
+        return _unit(self.end - self.start)
+
+    @property
+    def length(self) -> float:
+        """Axis length, metres."""
+        return float(np.linalg.norm(self.end - self.start))
+
+    @property
+    def width(self) -> float:
+        """Largest cross-section diameter, metres (2 * max radius): the paper's section width."""
+        return float(2.0 * self.radii.max())
+
+    @property
+    def frame(self) -> np.ndarray:
+        """(3, 3) rows: frame_x, frame_y = axis x frame_x, axis."""
+        z = self.axis
+        return np.stack([self.frame_x, np.cross(z, self.frame_x), z])
+
+    @property
+    def is_cylinder(self) -> bool:
+        return bool(np.isclose(self.radii[0], self.radii[1]))
+
+    def replace(self, **changes) -> "SectionShape":
+        """A copy with some fields changed."""
+        return replace(self, **changes)
+
+    # -- coordinates --------------------------------------------------------------------------
+    def local(self, points: np.ndarray) -> np.ndarray:
+        """(n, 3) coordinates of ``points`` (n, 3) in the section frame: x, y across, h along the axis."""
+        return (np.asarray(points, dtype=np.float64) - self.start) @ self.frame.T
+
+    def radius_at(self, theta: np.ndarray) -> np.ndarray:
+        """(n,) radius of the cross-section ellipse at angle ``theta`` (n,), metres."""
+        a, b = self.radii
+        return a * b / np.hypot(b * np.cos(theta), a * np.sin(theta))
+
+    def coords(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Section coordinates ``(r, theta, h)`` of ``points`` (n, 3).
+
+        Returns
+        -------
+        r : (n,) float
+            Signed distance from the model surface, metres (negative inside).
+        theta : (n,) float
+            Angle around the axis from ``frame_x``, radians in [0, 2*pi).
+        h : (n,) float
+            Position along the axis from ``start``, metres.
+        """
+        q = self.local(points)
+        x, y, h = q[:, 0], q[:, 1], q[:, 2]
+        theta = np.mod(np.arctan2(y, x), 2 * np.pi)
+        # axial excess beyond a closed end (an open end extends the column)
+        e = np.zeros_like(h)
+        c = np.ones_like(h)
+        if self.closed[0]:
+            m = h < 0
+            e[m], c[m] = h[m], self.caps[0]
+        if self.closed[1]:
+            m = h > self.length
+            e[m], c[m] = h[m] - self.length, self.caps[1]
+        a, b = self.radii
+        s = np.sqrt((x / a) ** 2 + (y / b) ** 2 + (e / c) ** 2)
+        norm = np.sqrt(x ** 2 + y ** 2 + e ** 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            r = np.where(s > 0, norm * (1.0 - 1.0 / s), -min(a, b))
+        return r, theta, h
+
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """(n,) unsigned distance from ``points`` (n, 3) to the model surface, metres."""
+        return np.abs(self.coords(points)[0])
+
+    def surface_points(self, n_theta: int = 24, n_h: int = 12) -> np.ndarray:
+        """(m, 3) points on the column and closed caps, for drawing and tests."""
+        t = np.linspace(0, 2 * np.pi, n_theta, endpoint=False)
+        R = self.radius_at(t)
+        h = np.linspace(0, self.length, n_h)
+        fx, fy, z = self.frame
+        col = (self.start + (R * np.cos(t))[None, :, None] * fx + (R * np.sin(t))[None, :, None] * fy
+               + h[:, None, None] * z).reshape(-1, 3)
+        parts = [col]
+        phi = np.linspace(0, np.pi / 2, n_h // 2 + 1)[1:]  # polar angle from the cap's pole
+        for end, (closed, cap, base, sign) in enumerate(zip(self.closed, self.caps, (self.start, self.end), (-1, 1))):
+            if not closed:
+                continue
+            rr = np.sin(phi)[:, None] * R[None, :]
+            hh = sign * cap * np.cos(phi)[:, None] * np.ones_like(R)[None, :]
+            parts.append((base + (rr * np.cos(t))[..., None] * fx + (rr * np.sin(t))[..., None] * fy
+                          + hh[..., None] * z).reshape(-1, 3))
+        return np.concatenate(parts)
+
+    def to_dict(self) -> dict:
+        """JSON-ready description (lists of floats)."""
+        return {
+            "shape": "cylinder" if self.is_cylinder else "elliptic_column",
+            "start": self.start.tolist(), "end": self.end.tolist(),
+            "radii": self.radii.tolist(), "length": self.length,
+            "frame_x": self.frame_x.tolist(), "closed": list(self.closed), "caps": self.caps.tolist(),
+        }
+
+    @classmethod
+    def from_dict(cls, name: str, d: dict) -> "SectionShape":
+        return cls(name=name, start=d["start"], end=d["end"], radii=d["radii"], frame_x=d["frame_x"],
+                   closed=tuple(d["closed"]), caps=d["caps"])
+
+
+def section_coords(sections: dict[str, SectionShape], points: np.ndarray):
+    """Section coordinates of ``points`` (n, 3) for every section in ``SECTIONS`` order.
+
+    Returns
+    -------
+    r, theta, h : (n, 11) float
+        As `SectionShape.coords`; columns of sections absent from ``sections`` are NaN.
+    """
+    n = len(points)
+    out = np.full((3, n, len(SECTIONS)), np.nan)
+    for j, name in enumerate(SECTIONS):
+        if name in sections:
+            out[:, :, j] = sections[name].coords(points)
+    return out[0], out[1], out[2]
