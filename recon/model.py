@@ -200,3 +200,74 @@ def section_coords(sections: dict[str, SectionShape], points: np.ndarray):
         if name in sections:
             out[:, :, j] = sections[name].coords(points)
     return out[0], out[1], out[2]
+
+
+#: Adjacent sections and the joint between them: {(proximal, distal): joint name}.
+ADJACENT = {
+    ("chest", "head"): "neck",
+    ("waist", "chest"): "chest",
+    ("chest", "upper_arm_l"): "shoulder_l",
+    ("chest", "upper_arm_r"): "shoulder_r",
+    ("upper_arm_l", "forearm_l"): "elbow_l",
+    ("upper_arm_r", "forearm_r"): "elbow_r",
+    ("waist", "thigh_l"): "hip_l",
+    ("waist", "thigh_r"): "hip_r",
+    ("thigh_l", "lower_leg_l"): "knee_l",
+    ("thigh_r", "lower_leg_r"): "knee_r",
+}
+
+
+def adjacency_matrix() -> np.ndarray:
+    """(11, 11) bool: True where two sections meet at a joint (symmetric, False on the diagonal)."""
+    m = np.zeros((len(SECTIONS), len(SECTIONS)), dtype=bool)
+    for a, b in ADJACENT:
+        i, j = SECTIONS.index(a), SECTIONS.index(b)
+        m[i, j] = m[j, i] = True
+    return m
+
+
+@dataclass(frozen=True, eq=False)
+class BodyFit:
+    """The body model fitted to a cloud: the result of posture estimation (paper section 2).
+
+    Attributes
+    ----------
+    sections : dict of str to SectionShape
+        Fitted sections, by name; a section that could not be fitted is absent.
+    joints : dict of str to (3,) float
+        Joint positions by canonical name (pelvis, chest, neck, head, shoulder_l, ...), metres.
+    residuals : dict of str to float
+        Per fitted section, RMS distance (metres) of its points to its model surface.
+    unfitted : tuple of str
+        Sections missing from the scan (or too poorly covered to fit).
+    coarse : BodyFit or None
+        The fit before the fine adjustment on the points (for previews), if kept.
+    """
+
+    sections: dict
+    joints: dict
+    residuals: dict = field(default_factory=dict)
+    unfitted: tuple = ()
+    coarse: "BodyFit | None" = None
+
+    def to_dict(self) -> dict:
+        """JSON-ready: ``{"joints": {name: [x, y, z]}, "sections": {name: {...}}, ...}``."""
+        d = {
+            "joints": {k: np.asarray(v, dtype=float).tolist() for k, v in self.joints.items()},
+            "sections": {k: {**s.to_dict(), "residual_m": self.residuals.get(k)}
+                         for k, s in self.sections.items()},
+            "unfitted": list(self.unfitted),
+        }
+        if self.coarse is not None:
+            d["coarse"] = self.coarse.to_dict()
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "BodyFit":
+        return cls(
+            sections={k: SectionShape.from_dict(k, v) for k, v in d["sections"].items()},
+            joints={k: np.asarray(v, dtype=float) for k, v in d["joints"].items()},
+            residuals={k: v["residual_m"] for k, v in d["sections"].items() if v.get("residual_m") is not None},
+            unfitted=tuple(d.get("unfitted", ())),
+            coarse=cls.from_dict(d["coarse"]) if d.get("coarse") else None,
+        )

@@ -64,3 +64,17 @@ def test_degenerate_section_is_rejected():
 def test_recon_sections_match_body_format():
     import poses
     assert SECTIONS == poses.SECTIONS
+
+
+def test_bodyfit_json_roundtrip():
+    import json
+    from recon.model import BodyFit, adjacency_matrix
+    fit = BodyFit(sections={"thigh_l": _cyl(closed=(True, False))}, joints={"hip_l": np.array([0.1, 0, 0.9])},
+                  residuals={"thigh_l": 0.004}, unfitted=("head",))
+    back = BodyFit.from_dict(json.loads(json.dumps(fit.to_dict())))
+    s = back.sections["thigh_l"]
+    assert s.closed == (True, False)
+    np.testing.assert_allclose(s.end, [0, 0, 1.0])
+    assert back.residuals == {"thigh_l": 0.004} and back.unfitted == ("head",)
+    m = adjacency_matrix()
+    assert m.sum() == 20 and (m == m.T).all()
