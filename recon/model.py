@@ -242,6 +242,8 @@ class BodyFit:
         Sections missing from the scan (or too poorly covered to fit).
     coarse : BodyFit or None
         The fit before the fine adjustment on the points (for previews), if kept.
+    times : dict of str to float
+        Seconds spent in each stage of the fit (e.g. ``voxelize``, ``match``, ``fine``).
     """
 
     sections: dict
@@ -249,6 +251,7 @@ class BodyFit:
     residuals: dict = field(default_factory=dict)
     unfitted: tuple = ()
     coarse: "BodyFit | None" = None
+    times: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready: ``{"joints": {name: [x, y, z]}, "sections": {name: {...}}, ...}``."""
@@ -257,6 +260,7 @@ class BodyFit:
             "sections": {k: {**s.to_dict(), "residual_m": self.residuals.get(k)}
                          for k, s in self.sections.items()},
             "unfitted": list(self.unfitted),
+            "times_s": dict(self.times),
         }
         if self.coarse is not None:
             d["coarse"] = self.coarse.to_dict()
@@ -270,4 +274,5 @@ class BodyFit:
             residuals={k: v["residual_m"] for k, v in d["sections"].items() if v.get("residual_m") is not None},
             unfitted=tuple(d.get("unfitted", ())),
             coarse=cls.from_dict(d["coarse"]) if d.get("coarse") else None,
+            times=dict(d.get("times_s", {})),
         )
