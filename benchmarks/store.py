@@ -1,0 +1,210 @@
+"""The results store of a sweep: one Parquet part per finished job, written atomically, never lost.
+
+Layout of a sweep folder ``DIR``::
+
+    DIR/sweep.yaml           the sweep file of the latest run (a copy)
+    DIR/meta.json            run metadata: versions, git commit, engine, start times
+    DIR/parts/<job>.parquet  one row per finished job (metrics, or the error and its traceback)
+    DIR/meshes/<job>.npz     reconstructed meshes kept for pictures (see `ResultStore.put_mesh`)
+
+Every file is written to a temporary name in the same folder, flushed to disk, then renamed over
+its final name (``os.replace``, atomic on POSIX): a reader, or a sweep killed at any instant, sees a
+job's part either whole or not at all. A part's presence is what "this job is finished" means, so a
+restarted sweep skips exactly the jobs whose parts exist. Temporary files left by a killed writer
+(``.tmp-*``) are removed when the store is opened for writing.
+
+Job parts are written by the one process that drives the sweep, as results arrive from the engine,
+so workers (local processes or a Dask cluster) need no shared file system.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+#: Columns every part has; the rest are parameters (``scanner.*``, ``recon.*``) and metrics.
+BASE_COLUMNS = ("job_id", "scan_id", "body", "seed", "method", "status", "error", "traceback",
+                "wall_s", "worker", "finished_at")
+
+_JOB_ID = re.compile(r"^[0-9a-zA-Z_-]{1,128}$")
+
+
+class ResultStore:
+    """Results of one sweep folder.
+
+    Parameters
+    ----------
+    root : str or Path
+        The sweep folder (created by `open_for_writing`).
+    """
+
+    def __init__(self, root):
+        self.root = Path(root)
+        self.parts = self.root / "parts"
+        self.meshes = self.root / "meshes"
+
+    # -- writing ------------------------------------------------------------------------------
+
+    def open_for_writing(self) -> "ResultStore":
+        """Create the folders and remove temporary files left by a killed writer; returns self."""
+        for folder in (self.root, self.parts, self.meshes):
+            folder.mkdir(parents=True, exist_ok=True)
+            for tmp in folder.glob(".tmp-*"):
+                tmp.unlink(missing_ok=True)
+        return self
+
+    def put(self, row: dict) -> Path:
+        """Write one job's row as ``parts/<job_id>.parquet``, atomically.
+
+        Parameters
+        ----------
+        row : dict
+            Must hold ``job_id``; values are scalars (numbers, strings, bools, None); anything
+            else (lists, dicts, arrays) is stored as a JSON string.
+        """
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        job_id = str(row.get("job_id", ""))
+        if not _JOB_ID.match(job_id):
+            raise ValueError(f"store: bad job id {job_id!r}")
+        clean = {str(k): _scalar(v) for k, v in row.items()}
+        table = pa.Table.from_pylist([clean])
+        return _atomic_write(self.parts / f"{job_id}.parquet",
+                             lambda path: pq.write_table(table, path))
+
+    def put_mesh(self, job_id: str, mesh: dict) -> Path:
+        """Keep a reconstructed mesh for pictures, as ``meshes/<job_id>.npz`` (atomic).
+
+        Parameters
+        ----------
+        mesh : dict of str to array
+            ``vertices`` (n, 3) float, ``faces`` (m, 3) int, ``face_section`` (m,) int,
+            ``spurious`` (m,) bool, ``bridging`` (m,) bool, and ``closeups``: a dict
+            {name: (center (3,), radius)} stored as JSON.
+        """
+        arrays = {k: np.asarray(v) for k, v in mesh.items() if k != "closeups"}
+        closeups = {k: [list(map(float, c)), float(r)] for k, (c, r) in
+                    (mesh.get("closeups") or {}).items()}
+        arrays["closeups_json"] = np.array(json.dumps(closeups))
+        if "vertices" in arrays:
+            arrays["vertices"] = arrays["vertices"].astype(np.float32)
+        return _atomic_write(self.meshes / f"{job_id}.npz",
+                             lambda path: np.savez_compressed(path, **arrays))
+
+    def drop_mesh(self, job_id: str) -> None:
+        """Forget a kept mesh (no error when there is none)."""
+        (self.meshes / f"{job_id}.npz").unlink(missing_ok=True)
+
+    def write_json(self, name: str, data: dict) -> Path:
+        """Write ``DIR/name`` as JSON, atomically."""
+        text = json.dumps(data, indent=2, sort_keys=True, default=str)
+        return _atomic_write(self.root / name, lambda path: Path(path).write_text(text))
+
+    def write_text(self, name: str, text: str) -> Path:
+        """Write ``DIR/name``, atomically."""
+        return _atomic_write(self.root / name, lambda path: Path(path).write_text(text))
+
+    # -- reading ------------------------------------------------------------------------------
+
+    def finished(self, *, include_failed: bool = True) -> set[str]:
+        """Ids of the jobs whose parts exist (with ``include_failed=False``, only those that
+        succeeded)."""
+        if not self.parts.is_dir():
+            return set()
+        ids = {p.stem for p in self._part_paths()}
+        if include_failed or not ids:
+            return ids
+        table = self.read(columns=["job_id", "status"])
+        return set(table.loc[table["status"] == "ok", "job_id"])
+
+    def read(self, columns=None):
+        """All rows as a `pandas.DataFrame` (columns are the union over parts; missing is NaN).
+
+        Raises
+        ------
+        FileNotFoundError
+            ``DIR`` holds no results.
+        """
+        import pandas as pd
+        import pyarrow as pa
+        import pyarrow.parquet as pq
+
+        paths = self._part_paths()
+        if not paths:
+            raise FileNotFoundError(f"{self.root}: no sweep results here (expected "
+                                    f"{self.parts}/*.parquet; run `bodyscan sweep` first)")
+        tables = [pq.read_table(p) for p in paths]
+        table = pa.concat_tables(tables, promote_options="permissive")
+        frame = table.to_pandas()
+        if columns is not None:
+            frame = frame[[c for c in columns if c in frame.columns]]
+        return frame.sort_values("job_id", kind="stable").reset_index(drop=True) \
+            if "job_id" in frame.columns else frame
+
+    def _part_paths(self) -> list[Path]:
+        """Finished parts (temporary ``.tmp-*`` files are not parts)."""
+        return sorted(self.parts.glob("[!.]*.parquet")) if self.parts.is_dir() else []
+
+    def mesh_ids(self) -> set[str]:
+        """Ids of the jobs whose meshes are kept."""
+        return {p.stem for p in self.meshes.glob("[!.]*.npz")} if self.meshes.is_dir() else set()
+
+    def get_mesh(self, job_id: str) -> dict:
+        """A kept mesh, as `put_mesh` took it (``closeups`` back as a dict)."""
+        with np.load(self.meshes / f"{job_id}.npz") as data:
+            mesh = {k: data[k] for k in data.files if k != "closeups_json"}
+            closeups = json.loads(str(data["closeups_json"])) if "closeups_json" in data.files else {}
+        mesh["closeups"] = {k: (np.asarray(c), float(r)) for k, (c, r) in closeups.items()}
+        return mesh
+
+    def read_json(self, name: str) -> dict:
+        path = self.root / name
+        return json.loads(path.read_text()) if path.is_file() else {}
+
+
+def _scalar(value):
+    """A Parquet-friendly scalar: numbers, strings, bools and None as they are, the rest as JSON."""
+    if value is None or isinstance(value, (bool, str)):
+        return value
+    if isinstance(value, (np.bool_,)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value)
+    if isinstance(value, np.ndarray) and value.ndim == 0:
+        return _scalar(value.item())
+    return json.dumps(value, sort_keys=True, default=_json_default)
+
+
+def _json_default(value):
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, (np.integer, np.floating, np.bool_)):
+        return value.item()
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return str(value)
+
+
+def _atomic_write(final: Path, write) -> Path:
+    """Call ``write(tmp_path)``, fsync, then rename over ``final``.
+
+    The temporary name keeps ``final``'s suffix (``np.savez`` would add ``.npz`` otherwise)."""
+    final = Path(final)
+    tmp = final.with_name(f".tmp-{os.getpid()}-{final.name}")
+    try:
+        write(str(tmp))
+        with open(tmp, "rb") as handle:
+            os.fsync(handle.fileno())
+        os.replace(tmp, final)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    return final

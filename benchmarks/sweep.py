@@ -1,0 +1,650 @@
+"""Parameter sweeps: expand a sweep file into jobs, run them on local processes or a Dask cluster,
+store every result as it arrives.
+
+A sweep file (YAML) names the bodies, seeds, methods, scanner settings and reconstruction
+parameters; in the ``scanner`` and ``recon`` sections a list is an axis of the grid and a scalar is
+fixed::
+
+    name: paper
+    bodies: library                  # every body of the shipped library, or a list of
+                                     # library names and body files (.npz, meshes)
+    seeds: [0]                       # scanner seeds (noise, misalignment)
+    methods: [proposed]
+    scanner:                         # simulator.ScannerConfig fields, from a preset
+      preset: paper
+      k: [1, 2, 3]                   # an axis: three scanner settings
+    recon:                           # recon.ReconParams flat names (see `bodyscan reconstruct`)
+      t_d: [0.2, 0.3]
+      "mesh_theta,mesh_h": [[5, 5], [10, 10]]   # tied axes: values taken together
+      cases: [{t_n_factor: 0.3}, {t_n_factor: 0.6, near_band: 2}]   # explicit combinations,
+                                                                    # crossed with the grid
+
+A list-valued setting is written as a list of lists (``[[1, 2, 3]]`` is one value). Every
+combination of body x seed x scanner setting x method x recon setting is one job. A job's id is a
+hash of all of these, so the same job has the same id in every run: `run_sweep` skips jobs whose
+results are already stored (see `benchmarks.store`) and runs only the rest.
+
+Scans are simulated once per (body, scanner setting, seed), on a worker, and every job of that
+scan gets the same scan: jobs are submitted when their scan is ready.
+
+The work itself is done by a *runner*, a module with two functions (the default, `DEFAULT_RUNNER`,
+simulates with `simulator` and scores with `benchmarks.bench.evaluate`)::
+
+    scan(body: str, scanner: dict, seed: int) -> object     # anything picklable
+    evaluate(scanned, method: str, recon: dict) -> dict     # metrics; optional "_mesh" entry
+    check(sweep: Sweep) -> None                             # optional: raise on bad settings
+
+A sweep file may name another one (``runner: mypackage.myrunner``), importable on every worker.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import itertools
+import json
+import math
+import os
+import socket
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from . import BenchError
+from .store import ResultStore
+
+#: The runner used when a sweep file names none.
+DEFAULT_RUNNER = "benchmarks.sweep"
+#: Top-level keys of a sweep file.
+SWEEP_KEYS = ("name", "description", "bodies", "seeds", "methods", "scanner", "recon", "runner",
+              "keep_meshes")
+
+
+@dataclass(frozen=True)
+class Job:
+    """One reconstruction of one scan, scored."""
+
+    job_id: str
+    scan_id: str
+    body: str
+    seed: int
+    scanner: dict
+    method: str
+    recon: dict
+
+    def row(self) -> dict:
+        """The job's parameters as result columns (``scanner.*``, ``recon.*``)."""
+        row = {"job_id": self.job_id, "scan_id": self.scan_id, "body": self.body,
+               "seed": self.seed, "method": self.method}
+        row.update({f"scanner.{k}": v for k, v in self.scanner.items()})
+        row.update({f"recon.{k}": v for k, v in self.recon.items()})
+        row["scanner_json"] = json.dumps(self.scanner, sort_keys=True)
+        row["recon_json"] = json.dumps(self.recon, sort_keys=True)
+        return row
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A parsed sweep file.
+
+    Attributes
+    ----------
+    name : str
+    bodies : tuple of str
+        Library names or body files (resolved paths in ``body_paths``).
+    seeds : tuple of int
+    methods : tuple of str
+    scanner : tuple of dict
+        Every scanner setting of the grid (each with a ``preset``).
+    recon : tuple of dict
+        Every reconstruction setting of the grid (flat `recon.ReconParams` names).
+    runner : str
+        Module doing the work (see the module docstring).
+    keep_meshes : int
+        Meshes kept per method for pictures: the worst jobs by spurious + bridging area.
+    source : str
+        The sweep file's text.
+    """
+
+    name: str
+    bodies: tuple
+    seeds: tuple
+    methods: tuple
+    scanner: tuple
+    recon: tuple
+    runner: str = DEFAULT_RUNNER
+    keep_meshes: int = 3
+    body_paths: dict = field(default_factory=dict)
+    source: str = ""
+
+    def jobs(self) -> list[Job]:
+        """Every job, grouped by scan (all jobs of one scan are adjacent)."""
+        out = []
+        for body, scanner, seed in itertools.product(self.bodies, self.scanner, self.seeds):
+            scan_key = {"body": body, "scanner": scanner, "seed": seed, "runner": self.runner}
+            scan_id = _digest(scan_key)
+            for method, recon in itertools.product(self.methods, self.recon):
+                job_id = _digest({**scan_key, "method": method, "recon": recon})
+                out.append(Job(job_id, scan_id, body, seed, scanner, method, recon))
+        return out
+
+
+def load_sweep(path) -> Sweep:
+    """Read and check a sweep file.
+
+    Raises
+    ------
+    BenchError
+        A missing file, bad YAML, an unknown key, a bad axis, or (through the runner's ``check``)
+        an unknown body, method or parameter; the message names the file.
+    """
+    import yaml
+
+    path = Path(path)
+    if not path.is_file():
+        raise BenchError(f"{path}: no such sweep file")
+    text = path.read_text()
+    try:
+        spec = yaml.safe_load(text)
+    except yaml.YAMLError as exc:
+        raise BenchError(f"{path}: not valid YAML ({str(exc).splitlines()[0]})") from None
+    if not isinstance(spec, dict):
+        raise BenchError(f"{path}: a sweep file is a mapping with keys {', '.join(SWEEP_KEYS)}")
+    unknown = sorted(set(spec) - set(SWEEP_KEYS))
+    if unknown:
+        raise BenchError(f"{path}: unknown key(s) {', '.join(unknown)} "
+                         f"(known: {', '.join(SWEEP_KEYS)})")
+    where = str(path)
+    bodies = spec.get("bodies", "library")
+    if bodies == "library":
+        from poses.library import list_bodies
+        bodies = list_bodies()
+        if not bodies:
+            raise BenchError(f"{path}: bodies: library, but the pose library is empty")
+    bodies = tuple(str(b) for b in _as_list(bodies, where, "bodies"))
+    body_paths = {b: _resolve_body(b, path.parent) for b in bodies}
+    seeds = tuple(_as_list(spec.get("seeds", [0]), where, "seeds"))
+    if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds):
+        raise BenchError(f"{path}: seeds must be non-negative integers, got {list(seeds)}")
+    methods = tuple(str(m) for m in _as_list(spec.get("methods", ["proposed"]), where, "methods"))
+    scanner = spec.get("scanner") or {}
+    if not isinstance(scanner, dict):
+        raise BenchError(f"{path}: scanner must be a mapping of ScannerConfig fields")
+    scanner = {"preset": "paper", **scanner}
+    keep = spec.get("keep_meshes", 3)
+    if not (isinstance(keep, int) and keep >= 0):
+        raise BenchError(f"{path}: keep_meshes must be an integer >= 0, got {keep!r}")
+    sweep = Sweep(
+        name=str(spec.get("name") or path.stem), bodies=bodies, seeds=seeds, methods=methods,
+        scanner=tuple(expand_grid(scanner, where=f"{path}: scanner")),
+        recon=tuple(expand_grid(spec.get("recon") or {}, where=f"{path}: recon")),
+        runner=str(spec.get("runner") or DEFAULT_RUNNER), keep_meshes=keep,
+        body_paths=body_paths, source=text)
+    for name, values in (("bodies", bodies), ("seeds", seeds), ("methods", methods)):
+        if len(set(values)) != len(values):
+            raise BenchError(f"{path}: {name} lists a value twice")
+    check = getattr(_runner(sweep.runner, where), "check", None)
+    if check is not None:
+        try:
+            check(sweep)
+        except (ValueError, KeyError, TypeError) as exc:
+            raise BenchError(f"{path}: {exc}") from None
+    return sweep
+
+
+def expand_grid(section: dict, *, where: str = "sweep") -> list[dict]:
+    """Every combination of a sweep-file section's axes.
+
+    Parameters
+    ----------
+    section : dict
+        ``name: value`` (fixed), ``name: [v1, v2]`` (an axis), ``"a,b": [[a1, b1], [a2, b2]]``
+        (tied axes), and ``cases: [{...}, ...]`` (explicit combinations, crossed with the rest).
+
+    Returns
+    -------
+    list of dict
+        One flat ``{name: value}`` per combination, in grid order (the last axis varies fastest).
+    """
+    if not isinstance(section, dict):
+        raise BenchError(f"{where}: expected a mapping of parameter names to values or lists")
+    axes: list[list[dict]] = []
+    for key, value in section.items():
+        key = str(key)
+        if key == "cases":
+            cases = _as_list(value, where, "cases")
+            if not cases or not all(isinstance(c, dict) for c in cases):
+                raise BenchError(f"{where}: cases must be a non-empty list of mappings")
+            axes.append([dict(c) for c in cases])
+            continue
+        names = [n.strip() for n in key.split(",")]
+        if not all(names):
+            raise BenchError(f"{where}: bad parameter name {key!r}")
+        values = value if isinstance(value, list) else [value]
+        if not values:
+            raise BenchError(f"{where}: {key} is an empty list")
+        if len(names) == 1:
+            axes.append([{names[0]: v} for v in values])
+            continue
+        tied = []
+        for v in values:
+            if not (isinstance(v, list) and len(v) == len(names)):
+                raise BenchError(f"{where}: {key} takes lists of {len(names)} values, got {v!r}")
+            tied.append(dict(zip(names, v)))
+        axes.append(tied)
+    out = []
+    for combo in itertools.product(*axes):
+        merged: dict = {}
+        for part in combo:
+            clash = set(merged) & set(part)
+            if clash:
+                raise BenchError(f"{where}: {', '.join(sorted(clash))} set twice in one combination")
+            merged.update(part)
+        out.append(merged)
+    return out
+
+
+# -- running ------------------------------------------------------------------------------------
+
+@dataclass
+class SweepSummary:
+    """What a run did: counts of jobs and the time it took."""
+
+    total: int
+    skipped: int
+    ok: int
+    failed: int
+    seconds: float
+    scans: int
+
+    @property
+    def remaining(self) -> int:
+        return self.total - self.skipped - self.ok - self.failed
+
+
+def run_sweep(sweep: Sweep, out, *, scheduler: str | None = None, workers: int | None = None,
+              retry_failed: bool = False, progress=True) -> SweepSummary:
+    """Run every job of ``sweep`` that ``out`` does not hold yet, storing each result as it comes.
+
+    Parameters
+    ----------
+    sweep : Sweep
+    out : str or Path
+        The sweep folder (see `benchmarks.store`).
+    scheduler : str, optional
+        ``tcp://HOST:PORT`` of a Dask scheduler (extra ``dist``); default: local processes.
+    workers : int, optional
+        Local processes (default: every core). Ignored with a scheduler.
+    retry_failed : bool
+        Also run again the jobs whose stored result is an error.
+    progress : bool or file
+        Where progress lines go (jobs done, failed, remaining, estimated time left): True for
+        stderr, a file, or False/None for none.
+
+    Returns
+    -------
+    SweepSummary
+    """
+    store = ResultStore(out).open_for_writing()
+    jobs = sweep.jobs()
+    done = store.finished(include_failed=not retry_failed)
+    todo = [j for j in jobs if j.job_id not in done]
+    store.write_text("sweep.yaml", sweep.source)
+    meta = store.read_json("meta.json")
+    runs = meta.get("runs", [])
+    runs.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "jobs": len(jobs),
+                 "todo": len(todo), "engine": scheduler or f"local:{workers or os.cpu_count()}"})
+    store.write_json("meta.json", {"sweep": sweep.name, "runner": sweep.runner, "runs": runs,
+                                   **_provenance()})
+    stored_failures = len(done - store.finished(include_failed=False)) if done else 0
+    stream = sys.stderr if progress is True else (progress or None)
+    meter = _Progress(len(jobs), len(jobs) - len(todo), stream, stored_failures)
+    keeper = _MeshKeeper(store, sweep.keep_meshes)
+    groups: dict[str, list[Job]] = {}
+    for job in todo:
+        groups.setdefault(job.scan_id, []).append(job)
+    start = time.perf_counter()
+    if todo:
+        engine = _DaskEngine(scheduler) if scheduler else _LocalEngine(workers, len(groups))
+        try:
+            _drive(engine, sweep, groups, store, meter, keeper)
+        except BaseException:
+            engine.close(abort=True)
+            raise
+        engine.close()
+    meter.finish()
+    return SweepSummary(total=len(jobs), skipped=len(jobs) - len(todo), ok=meter.ok,
+                        failed=meter.failed, seconds=time.perf_counter() - start,
+                        scans=len(groups))
+
+
+def _drive(engine, sweep: Sweep, groups: dict, store: ResultStore, meter, keeper) -> None:
+    """Submit one scan task per group; when a scan is ready, submit its jobs; store each result."""
+    pending: dict = {}
+    for scan_id, group in groups.items():
+        first = group[0]
+        body_path = sweep.body_paths.get(first.body, first.body)
+        future = engine.submit(_scan_task, sweep.runner, body_path, first.scanner, first.seed,
+                               key=f"scan-{scan_id}")
+        pending[future] = ("scan", scan_id)
+    while pending:
+        for future in engine.wait(list(pending)):
+            kind, what = pending.pop(future)
+            if kind == "scan":
+                scanned = engine.result_ref(future)
+                for job in groups[what]:
+                    f = engine.submit(_job_task, sweep.runner, scanned, job.method, job.recon,
+                                      key=f"job-{job.job_id}")
+                    pending[f] = ("job", job)
+                continue
+            try:
+                result = future.result()
+            except BaseException as exc:  # the engine lost the task (a worker died)
+                result = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                          "traceback": "".join(traceback.format_exception(exc))}
+            row = {**what.row(), **result}
+            mesh = row.pop("_mesh", None)
+            store.put(row)
+            if mesh is not None:
+                keeper.offer(what, row, mesh)
+            meter.update(row["status"] == "ok")
+
+
+def _scan_task(runner: str, body: str, scanner: dict, seed: int):
+    """Worker side: simulate one scan; a failure is returned (not raised) for its jobs to report."""
+    try:
+        return _runner(runner).scan(body, dict(scanner), int(seed))
+    except Exception as exc:
+        return _Failed(f"scan failed: {type(exc).__name__}: {exc}",
+                       "".join(traceback.format_exception(exc)))
+
+
+def _job_task(runner: str, scanned, method: str, recon: dict) -> dict:
+    """Worker side: one job; returns the metrics (status ok) or the error and its traceback."""
+    started = time.perf_counter()
+    info = {"worker": f"{socket.gethostname()}:{os.getpid()}"}
+    if isinstance(scanned, _Failed):
+        return {"status": "error", "error": scanned.error, "traceback": scanned.traceback,
+                "wall_s": 0.0, **info, "finished_at": time.time()}
+    try:
+        metrics = dict(_runner(runner).evaluate(scanned, method, dict(recon)))
+        status = {"status": "ok", "error": None, "traceback": None}
+    except Exception as exc:
+        metrics = {}
+        status = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                  "traceback": "".join(traceback.format_exception(exc))}
+    return {**metrics, **status, "wall_s": time.perf_counter() - started, **info,
+            "finished_at": time.time()}
+
+
+@dataclass(frozen=True)
+class _Failed:
+    error: str
+    traceback: str
+
+
+class _LocalEngine:
+    """Local worker processes (`concurrent.futures.ProcessPoolExecutor`, spawned)."""
+
+    def __init__(self, workers: int | None, n_tasks: int):
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+
+        n = int(workers) if workers else (os.cpu_count() or 1)
+        if n < 1:
+            raise BenchError(f"--workers must be >= 1, got {workers}")
+        self.pool = ProcessPoolExecutor(max_workers=n,
+                                        mp_context=multiprocessing.get_context("spawn"),
+                                        initializer=_watch_parent, initargs=(os.getpid(),))
+
+    def submit(self, fn, *args, key=None):
+        return self.pool.submit(fn, *args)
+
+    def result_ref(self, future):
+        return future.result()
+
+    def wait(self, futures):
+        from concurrent.futures import FIRST_COMPLETED, wait
+        return wait(futures, return_when=FIRST_COMPLETED).done
+
+    def close(self, abort: bool = False):
+        self.pool.shutdown(wait=not abort, cancel_futures=True)
+
+
+def _watch_parent(parent: int) -> None:
+    """Worker initializer: exit when the driving process is gone (killed), not linger."""
+    import threading
+
+    def watch():
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True).start()
+
+
+class _DaskEngine:
+    """A Dask distributed cluster: ``tcp://HOST:PORT`` of its scheduler (extra ``dist``)."""
+
+    def __init__(self, address: str):
+        try:
+            from distributed import Client
+        except ImportError:
+            raise BenchError("--scheduler needs Dask distributed: pip install 'bodyscan[dist]'") \
+                from None
+        self._token = f"{os.getpid()}-{time.time_ns()}"
+        try:
+            self.client = Client(address, timeout="20s")
+        except (OSError, TimeoutError) as exc:
+            raise BenchError(f"--scheduler {address}: cannot connect ({exc})") from None
+
+    def submit(self, fn, *args, key=None):
+        return self.client.submit(fn, *args, key=f"{key}-{self._token}", pure=False)
+
+    def result_ref(self, future):
+        return future   # Dask hands the scan to the job on the worker, without a round trip
+
+    def wait(self, futures):
+        from distributed import wait
+        return wait(futures, return_when="FIRST_COMPLETED").done
+
+    def close(self, abort: bool = False):
+        self.client.close()
+
+
+class _MeshKeeper:
+    """Keeps, per method, the meshes of the ``k`` worst jobs (spurious + bridging area)."""
+
+    def __init__(self, store: ResultStore, k: int):
+        self.store, self.k = store, k
+        self.kept: dict[str, list] = {}
+        ids = store.mesh_ids()
+        if ids:
+            table = store.read()
+            for _, row in table[table["job_id"].isin(ids)].iterrows():
+                self.kept.setdefault(row["method"], []).append((_badness(row), row["job_id"]))
+
+    def offer(self, job: Job, row: dict, mesh: dict) -> None:
+        bad = _badness(row)
+        if self.k == 0 or not math.isfinite(bad):
+            return
+        kept = self.kept.setdefault(job.method, [])
+        if len(kept) >= self.k and bad <= min(kept)[0]:
+            return
+        self.store.put_mesh(job.job_id, mesh)
+        kept.append((bad, job.job_id))
+        kept.sort(reverse=True)
+        while len(kept) > self.k:
+            self.store.drop_mesh(kept.pop()[1])
+
+
+def _badness(row) -> float:
+    try:
+        value = float(row.get("spurious_area_fraction", math.nan)) + \
+            float(row.get("bridging_area_fraction", math.nan))
+    except (TypeError, ValueError):
+        return math.nan
+    return value
+
+
+class _Progress:
+    """Progress lines on stderr: done, failed, remaining, and the estimated time left."""
+
+    def __init__(self, total: int, skipped: int, stream, stored_failures: int = 0):
+        self.total, self.skipped, self.stream = total, skipped, stream
+        self.ok = self.failed = 0
+        self.start = self.last = time.perf_counter()
+        self.tty = bool(stream is not None and getattr(stream, "isatty", lambda: False)())
+        self.printed = False
+        if stream is not None:
+            note = (f" ({stored_failures} of them failed; --retry-failed reruns them)"
+                    if stored_failures else "")
+            print(f"sweep: {total} jobs, {skipped} already stored{note}, {total - skipped} to run",
+                  file=stream, flush=True)
+
+    def update(self, ok: bool) -> None:
+        self.ok += ok
+        self.failed += not ok
+        now = time.perf_counter()
+        self.printed = False
+        if self.stream is not None and (now - self.last >= 1.0 or self.tty):
+            self.last = now
+            self._print(end="\r" if self.tty else "\n")
+            self.printed = not self.tty
+
+    @property
+    def left(self) -> int:
+        return self.total - self.skipped - self.ok - self.failed
+
+    def _print(self, end="\n"):
+        ran = self.ok + self.failed
+        elapsed = time.perf_counter() - self.start
+        eta = elapsed / ran * self.left if ran else math.nan
+        print(f"sweep: {self.skipped + ran}/{self.total} done ({self.failed} failed), "
+              f"{self.left} left, elapsed {_hms(elapsed)}, ETA {_hms(eta)}",
+              file=self.stream, end=end, flush=True)
+
+    def finish(self) -> None:
+        if self.stream is not None and not self.printed:
+            self._print()
+
+
+def _hms(seconds: float) -> str:
+    if not math.isfinite(seconds):
+        return "--:--:--"
+    s = int(round(seconds))
+    return f"{s // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}"
+
+
+# -- helpers ------------------------------------------------------------------------------------
+
+def _digest(obj) -> str:
+    text = json.dumps(obj, sort_keys=True, separators=(",", ":"), default=str)
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def _as_list(value, where, name) -> list:
+    if isinstance(value, (list, tuple)):
+        return list(value)
+    if isinstance(value, (str, int, float)):
+        return [value]
+    raise BenchError(f"{where}: {name} must be a value or a list, got {value!r}")
+
+
+def _resolve_body(body: str, base: Path) -> str:
+    """A library name stays a name; a file path becomes absolute (relative to cwd, else to the
+    sweep file's folder)."""
+    if "/" not in body and "\\" not in body and not Path(body).suffix:
+        return body
+    for candidate in (Path(body), base / body):
+        if candidate.exists():
+            return str(candidate.resolve())
+    return body   # the runner's check reports it
+
+
+def _runner(name: str, where: str = "sweep"):
+    try:
+        return importlib.import_module(name)
+    except ImportError as exc:
+        raise BenchError(f"{where}: runner {name!r} cannot be imported ({exc})") from None
+
+
+def _provenance() -> dict:
+    """Package versions and git commit, stored with the results."""
+    import platform
+    from importlib.metadata import PackageNotFoundError, version
+
+    versions = {}
+    for pkg in ("bodyscan", "numpy", "scipy", "trimesh", "embreex", "pyrender", "dask",
+                "distributed"):
+        try:
+            versions[pkg] = version(pkg)
+        except PackageNotFoundError:
+            pass
+    commit = None
+    try:
+        import subprocess
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent,
+                                capture_output=True, text=True, timeout=5).stdout.strip() or None
+    except (OSError, subprocess.SubprocessError):
+        pass
+    return {"versions": versions, "git_commit": commit, "python": platform.python_version(),
+            "host": socket.gethostname()}
+
+
+# -- the default runner: simulator + recon + benchmarks.bench ------------------------------------
+
+def check(sweep: Sweep) -> None:
+    """Check bodies, scanner settings, methods and reconstruction parameters before running."""
+    import simulator
+    from poses.body import load_body
+    from recon import ReconParams
+
+    for body in sweep.bodies:
+        load_body(sweep.body_paths.get(body, body))
+    for setting in sweep.scanner:
+        _scanner_config(setting)
+    for setting in sweep.recon:
+        ReconParams.from_overrides(setting)
+    known = _known_methods()
+    bad = [m for m in sweep.methods if known and m not in known]
+    if bad:
+        raise ValueError(f"unknown method(s) {', '.join(bad)} (known: {', '.join(known)})")
+    del simulator
+
+
+def scan(body: str, scanner: dict, seed: int):
+    """Default runner: load ``body`` and simulate its scan; returns ``(body, scan)``."""
+    import simulator
+    from poses.body import load_body
+
+    loaded = load_body(body)
+    return loaded, simulator.scan(loaded, _scanner_config(scanner), seed=seed)
+
+
+def evaluate(scanned, method: str, recon: dict) -> dict:
+    """Default runner: reconstruct and score one scan with `benchmarks.bench.evaluate`."""
+    from recon import ReconParams
+
+    from .bench import evaluate as bench_evaluate
+
+    body, simulated = scanned
+    return bench_evaluate(body, simulated, method, ReconParams.from_overrides(recon))
+
+
+def _scanner_config(setting: dict):
+    import simulator
+
+    setting = dict(setting)
+    return simulator.preset(setting.pop("preset", "paper"), **setting)
+
+
+def _known_methods() -> tuple:
+    try:
+        from .bench import METHODS
+        return tuple(METHODS)
+    except ImportError:
+        from recon.pipeline import METHODS
+        return tuple(METHODS)
