@@ -5,4 +5,9 @@ class ScanError(ValueError):
     """A scan request that cannot be carried out (bad mesh, bad configuration)."""
 
 
-__all__ = ["ScanError"]
+from .config import HEAD_LAYOUTS, PRESETS, Head, ScannerConfig, head_layout, preset  # noqa: E402
+from .scan import Scan, Scanner, ScanWarning, scan  # noqa: E402
+from .cloud_io import read_scan, write_cloud  # noqa: E402
+
+__all__ = ["ScanError", "ScanWarning", "Head", "ScannerConfig", "head_layout", "HEAD_LAYOUTS",
+           "PRESETS", "preset", "Scan", "Scanner", "scan", "write_cloud", "read_scan"]
