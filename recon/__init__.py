@@ -9,3 +9,8 @@ class ReconError(ValueError):
 
 
 __all__ = ["ReconError"]
+
+from .params import ClusterParams, ReconParams, SurfaceParams  # noqa: E402  (after ReconError)
+from .pipeline import Reconstruction, reconstruct, write_mesh  # noqa: E402
+
+__all__ += ["ClusterParams", "ReconParams", "SurfaceParams", "Reconstruction", "reconstruct", "write_mesh"]

@@ -1,0 +1,493 @@
+"""Clustering of a cloud into the body sections of a fitted model (paper section 3, 3.1, 3.2).
+
+The steps, each usable alone:
+
+1. `section_coordinates`: (r, theta, h) of every point for every section.
+2. `simple_clustering`: a point joins every section whose surface is nearer than T_d (the baseline).
+3. `refine_by_distance`: per (theta, h) cell of a section, an Otsu threshold on r splits two peaks
+   and keeps the smaller-r one, unless the cell is single-peaked (the T_n test).
+4. `adopt_unlabeled`, `reduce_to_two`, `resolve_two_sections`, `resolve_joints`: settle the points
+   left in no section, in three or more, and in two sections (paper section 3.2).
+
+`cluster_points` chains them for ``method="proposed"`` or ``"simple"``. Memberships are ``(n, 11)``
+bool arrays in `recon.model.SECTIONS` order.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .model import ADJACENT, SECTIONS, BodyFit, section_coords
+from .params import ClusterParams
+
+NS = len(SECTIONS)
+
+
+# -- 1. coordinates ------------------------------------------------------------------------------
+def section_coordinates(points: np.ndarray, fit: BodyFit):
+    """Section coordinates of every point for every section.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    fit : BodyFit
+
+    Returns
+    -------
+    r, theta, h : (n, 11) float
+        Signed distance from each section's model surface (metres, negative inside), angle around
+        its axis (radians) and position along it (metres); NaN for sections absent from ``fit``.
+    """
+    return section_coords(fit.sections, points)
+
+
+def section_widths(fit: BodyFit) -> np.ndarray:
+    """(11,) float: each section's width (metres), NaN where the section is not fitted."""
+    return np.array([fit.sections[s].width if s in fit.sections else np.nan for s in SECTIONS])
+
+
+# -- 2. simple clustering ------------------------------------------------------------------------
+def simple_clustering(r: np.ndarray, widths: np.ndarray, t_d: float = 0.30) -> np.ndarray:
+    """The baseline: each point joins every section whose model surface is nearer than T_d.
+
+    Parameters
+    ----------
+    r : (n, 11) float
+        Signed distances from the section surfaces, metres (NaN: no such section).
+    widths : (11,) float
+        Section widths, metres.
+    t_d : float
+        T_d as a fraction of each section's width (paper: 0.30).
+
+    Returns
+    -------
+    member : (n, 11) bool
+    """
+    with np.errstate(invalid="ignore"):
+        return np.abs(r) < t_d * np.asarray(widths)[None, :]
+
+
+# -- 3. refinement by the distance distribution ---------------------------------------------------
+def otsu_cells(cell: np.ndarray, values: np.ndarray, n_cells: int, *, bins: int = 16,
+               near_band: float = 1.0, t_n_factor: float = 0.5, min_points: int = 12):
+    """Per-cell Otsu threshold and single-peak test, vectorized over cells.
+
+    Parameters
+    ----------
+    cell : (m,) int
+        Cell index of each value, in ``[0, n_cells)``.
+    values : (m,) float
+        The values to split (r, metres).
+    n_cells : int
+    bins : int
+        Histogram bins per cell, spanning that cell's value range.
+    near_band : float
+        Values within ``near_band`` bin widths of the threshold are "near" it.
+    t_n_factor : float
+        T_n = the cell histogram's maximum frequency times this factor; a cell with more than T_n
+        values near its threshold is single-peaked.
+    min_points : int
+        Cells with fewer values are treated as single-peaked.
+
+    Returns
+    -------
+    threshold : (n_cells,) float
+        Otsu threshold of each cell (NaN for empty cells).
+    split : (n_cells,) bool
+        True where the cell holds two peaks (split at the threshold).
+    """
+    cell = np.asarray(cell, dtype=np.int64)
+    v = np.asarray(values, dtype=np.float64)
+    cnt = np.bincount(cell, minlength=n_cells)
+    lo = np.full(n_cells, np.inf)
+    hi = np.full(n_cells, -np.inf)
+    np.minimum.at(lo, cell, v)
+    np.maximum.at(hi, cell, v)
+    span = hi - lo
+    width = np.where(span > 0, span / bins, 1.0)
+    b = np.clip(((v - lo[cell]) / width[cell]).astype(np.int64), 0, bins - 1)
+    H = np.bincount(cell * bins + b, minlength=n_cells * bins).reshape(n_cells, bins).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        p = H / cnt[:, None]
+        w0 = np.cumsum(p, axis=1)[:, :-1]                   # weight below a cut after bin k
+        m = np.cumsum(p * np.arange(bins), axis=1)
+        mk, mt = m[:, :-1], m[:, -1:]
+        sb = (mt * w0 - mk) ** 2 / (w0 * (1.0 - w0))          # between-class variance
+    sb = np.where(np.isfinite(sb), sb, -1.0)
+    k = sb.argmax(axis=1)
+    threshold = np.where(cnt > 0, lo + (k + 1) * width, np.nan)
+    near = np.abs(v - threshold[cell]) <= near_band * width[cell]
+    n_near = np.bincount(cell, weights=near.astype(np.float64), minlength=n_cells)
+    single = (n_near > t_n_factor * H.max(axis=1)) | (cnt < min_points) | ~(span > 0)
+    return threshold, ~single
+
+
+def cell_index(theta: np.ndarray, h: np.ndarray, length: float, mesh_theta: int, mesh_h: int) -> np.ndarray:
+    """(m,) int cell of the (theta, h) mesh on a section's side; caps fall in the end rows."""
+    ti = np.clip((theta * (mesh_theta / (2 * np.pi))).astype(np.int64), 0, mesh_theta - 1)
+    hi = np.clip(np.floor(h / length * mesh_h).astype(np.int64), 0, mesh_h - 1)
+    return ti * mesh_h + hi
+
+
+def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: np.ndarray,
+                       fit: BodyFit, params: ClusterParams = ClusterParams()) -> np.ndarray:
+    """Refine memberships by the local distribution of r (paper section 3.1).
+
+    In each (theta, h) cell of each section, the r of the section's members is split by Otsu's
+    threshold unless the cell is single-peaked (more than T_n points near the threshold). In a
+    two-peak cell the larger-r peak "represents the surface of another body section": its points
+    leave this section, but only those that are also members of a section that does not meet
+    this one at a joint (paper silent). So a point never leaves its only section (the paper's
+    proviso that two peaks may come from noise), and the overlap of adjacent sections, whose
+    surfaces are continuous across the joint, is left to the joint rule.
+
+    Parameters
+    ----------
+    member : (n, 11) bool
+        Memberships from `simple_clustering`.
+    r, theta, h : (n, 11) float
+        From `section_coordinates`.
+    fit : BodyFit
+    params : ClusterParams
+
+    Returns
+    -------
+    member : (n, 11) bool
+        A refined copy.
+    """
+    from .model import adjacency_matrix
+
+    out = member.copy()
+    n_cells = params.mesh_theta * params.mesh_h
+    apart = ~adjacency_matrix() & ~np.eye(NS, dtype=bool)   # sections that do not meet at a joint
+    for j, name in enumerate(SECTIONS):
+        if name not in fit.sections:
+            continue
+        idx = np.flatnonzero(member[:, j])
+        if len(idx) == 0:
+            continue
+        cell = cell_index(theta[idx, j], h[idx, j], fit.sections[name].length,
+                          params.mesh_theta, params.mesh_h)
+        rr = r[idx, j]
+        thr, split = otsu_cells(cell, rr, n_cells, bins=params.otsu_bins, near_band=params.near_band,
+                                t_n_factor=params.t_n_factor, min_points=params.min_cell_points)
+        elsewhere = (out[idx][:, apart[j]]).any(axis=1)
+        drop = split[cell] & (rr >= thr[cell]) & elsewhere
+        out[idx[drop], j] = False
+    return out
+
+
+# -- 4. points in no section, in three or more, in two ---------------------------------------------
+def neighbor_radius(points: np.ndarray, params: ClusterParams, tree=None) -> float:
+    """The neighbour radius, metres: ``params.neighbor_radius`` or the automatic one."""
+    if params.neighbor_radius > 0:
+        return float(params.neighbor_radius)
+    from scipy.spatial import cKDTree
+
+    tree = tree if tree is not None else cKDTree(points)
+    rng = np.random.default_rng(0)
+    sample = points[rng.choice(len(points), size=min(len(points), 5000), replace=False)]
+    d, _ = tree.query(sample, k=2)
+    spacing = float(np.median(d[:, 1]))
+    return params.neighbor_spacing * max(spacing, 1e-6)
+
+
+def _neighbors(tree, points, rows, radius):
+    """CSR-like neighbour lists of ``rows`` (excluding themselves): (row position, neighbour) pairs."""
+    lists = tree.query_ball_point(points[rows], radius, workers=1)
+    lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
+    cols = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
+    pos = np.repeat(np.arange(len(rows)), lens)
+    keep = cols != rows[pos]
+    return pos[keep], cols[keep]
+
+
+def adopt_unlabeled(member: np.ndarray, points: np.ndarray, radius: float, max_rounds: int = 20) -> np.ndarray:
+    """Points in no section take the sections of their nearest labelled point within ``radius``.
+
+    Repeated (up to ``max_rounds``), so that labels spread into a connected unlabelled region
+    (fingers, toes, a nose further than T_d from the model). Returns a copy of ``member`` (n, 11);
+    points with no labelled point within reach stay unlabelled.
+    """
+    from scipy.spatial import cKDTree
+
+    out = member.copy()
+    for _ in range(max_rounds):
+        labelled = out.any(axis=1)
+        lone = np.flatnonzero(~labelled)
+        if len(lone) == 0 or not labelled.any():
+            break
+        src = np.flatnonzero(labelled)
+        d, k = cKDTree(points[src]).query(points[lone], k=1, distance_upper_bound=radius)
+        ok = np.isfinite(d)
+        if not ok.any():
+            break
+        out[lone[ok]] = out[src[k[ok]]]
+    return out
+
+
+def _scaled_distance(r, widths):
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isnan(r), np.inf, np.abs(r) / np.asarray(widths)[None, :])
+
+
+def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths: np.ndarray,
+                  *, max_rounds: int = 20, k: int = 16, tree=None) -> np.ndarray:
+    """Three-or-more rule: copy the sections of the nearest point that has fewer (paper 3.2).
+
+    Repeated until every point is in at most two sections; after ``max_rounds`` (or when a point has
+    no such point among its ``k`` nearest) it keeps the two sections whose surfaces are nearest
+    relative to their widths.
+
+    Returns a copy of ``member`` (n, 11).
+    """
+    from scipy.spatial import cKDTree
+
+    out = member.copy()
+    tree = tree if tree is not None else cKDTree(points)
+    k = min(k, len(points))
+    for _ in range(max_rounds):
+        count = out.sum(axis=1)
+        many = np.flatnonzero(count >= 3)
+        if len(many) == 0:
+            return out
+        _, nb = tree.query(points[many], k=k)
+        nb = nb.reshape(len(many), k)
+        fewer = (count[nb] < count[many][:, None]) & (nb != many[:, None])
+        has = fewer.any(axis=1)
+        if not has.any():
+            break
+        first = nb[np.arange(len(many)), fewer.argmax(axis=1)]
+        new = out.copy()
+        new[many[has]] = out[first[has]]
+        # a copy that leaves the point in no section is no help: keep its own labels then
+        emptied = ~new[many].any(axis=1)
+        new[many[emptied]] = out[many[emptied]]
+        if np.array_equal(new, out):
+            break
+        out = new
+    many = np.flatnonzero(out.sum(axis=1) >= 3)
+    if len(many):
+        sd = np.where(out[many], _scaled_distance(r[many], widths), np.inf)
+        best = np.argsort(sd, axis=1)[:, :2]
+        out[many] = False
+        out[many[:, None], best] = True
+    return out
+
+
+def _pairs(member, rows):
+    """(m,) first and second section index of rows that are in exactly two sections."""
+    order = np.argsort(~member[rows], axis=1, kind="stable")
+    return order[:, 0], order[:, 1]
+
+
+def joint_location(fit: BodyFit, a: int, b: int):
+    """(3,) position of the joint between adjacent sections a and b, or None when not adjacent."""
+    for (p, d), joint in ADJACENT.items():
+        if {SECTIONS.index(p), SECTIONS.index(d)} == {a, b}:
+            if joint in fit.joints:
+                return np.asarray(fit.joints[joint], dtype=float), d
+            if d in fit.sections:
+                return fit.sections[d].start, d
+    return None
+
+
+def at_joint_mask(points: np.ndarray, A: np.ndarray, B: np.ndarray, h: np.ndarray, fit: BodyFit,
+                  joint_reach: float) -> np.ndarray:
+    """(m,) bool: whether each two-section point (sections A, B) lies at the joint between them.
+
+    Only adjacent sections meet at a joint; a point is at it when its position along the distal
+    section's axis is less than ``joint_reach`` times that section's width (the distal section
+    starts at the joint).
+    """
+    at = np.zeros(len(points), dtype=bool)
+    for (p, d) in ADJACENT:
+        ip, idd = SECTIONS.index(p), SECTIONS.index(d)
+        if d not in fit.sections:
+            continue
+        sel = ((A == ip) & (B == idd)) | ((A == idd) & (B == ip))
+        if sel.any():
+            at[sel] = h[sel, idd] < joint_reach * fit.sections[d].width
+    return at
+
+
+def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rounds=20):
+    """Two-section rule for points not at a joint (paper 3.2), in place on ``member``.
+
+    A point in sections A and B goes to the one with the smaller ``|d_A - mean_A|`` vs
+    ``|d_B - mean_B|``, where d are its signed distances to the section surfaces and the means are
+    over its neighbours clustered only into A (only into B). Where a point has no such neighbour
+    for a section, that section's mean is the median r of all points clustered only into it (paper
+    silent). Decisions are taken in rounds, the points with neighbours of both kinds first, so that
+    the others see settled neighbours.
+    """
+    pos, nb = _neighbors(tree, points, rows, radius)
+    count0 = member.sum(axis=1)
+    fallback = np.zeros(NS)
+    for j in range(NS):
+        only = member[:, j] & (count0 == 1)
+        if only.any():
+            fallback[j] = np.median(r[only, j])
+    m = len(rows)
+    todo = np.ones(m, dtype=bool)
+    for round_ in range(max_rounds + 1):
+        count = member.sum(axis=1)
+        only_a = member[nb, A[pos]] & (count[nb] == 1)
+        only_b = member[nb, B[pos]] & (count[nb] == 1)
+        na = np.bincount(pos, weights=only_a, minlength=m)
+        nbb = np.bincount(pos, weights=only_b, minlength=m)
+        sa = np.bincount(pos, weights=np.where(only_a, r[nb, A[pos]], 0.0), minlength=m)
+        sb = np.bincount(pos, weights=np.where(only_b, r[nb, B[pos]], 0.0), minlength=m)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_a = np.where(na > 0, sa / na, fallback[A])
+            mean_b = np.where(nbb > 0, sb / nbb, fallback[B])
+        ea = np.abs(r[rows, A] - mean_a)
+        eb = np.abs(r[rows, B] - mean_b)
+        last = round_ == max_rounds
+        decided = todo & (((na > 0) & (nbb > 0)) | last)
+        if not decided.any():  # nobody has both kinds: let those with one kind go
+            decided = todo & ((na > 0) | (nbb > 0))
+            if not decided.any():
+                decided = todo
+        to_a = decided & (ea <= eb)
+        to_b = decided & (ea > eb)
+        member[rows[to_a], B[to_a]] = False
+        member[rows[to_b], A[to_b]] = False
+        todo &= ~decided
+        if not todo.any():
+            return
+
+
+def resolve_joints(member, points, r, rows, A, B, radius, tree, widths):
+    """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
+
+    The paper settles such a point from its neighbours: only in A, or in A and in both -> A
+    (likewise B); neighbours in A, in B and in both -> it stays in both when the "both" ones are
+    few, otherwise it waits while the others are settled, and the rule is applied again. Applied
+    round after round, this erodes the overlap from the A-only and the B-only sides until the two
+    fronts meet. That fixed point is computed here directly, with distances along the neighbour
+    graph (Dijkstra from the single-section points of each section).
+
+    Where the fronts meet: the overlap reaches T_d * width_A into B and T_d * width_B into A, so
+    the fronts meet at the true junction when a point goes to A if ``d_A * width_A < d_B *
+    width_B`` (``d`` its graph distance from each front); plain round-by-round erosion would move
+    the seam toward the narrower section. The points of the proximal section that have a
+    neighbour of the distal one stay in both: a one-point-wide seam that stitches the surfaces.
+    Points that no front reaches go to the section whose surface is nearer (relative to width).
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import dijkstra
+
+    pos, nb = _neighbors(tree, points, rows, radius)
+    n, m = len(points), len(rows)
+    count = member.sum(axis=1)
+    w = np.linalg.norm(points[rows[pos]] - points[nb], axis=1) + 1e-9
+    graph = coo_matrix((w, (rows[pos], nb)), shape=(n, n)).tocsr()
+    graph = graph.maximum(graph.T)
+    dist = np.full((m, 2), np.inf)
+    for j in np.unique(np.concatenate([A, B])):
+        src = np.unique(nb[(count[nb] == 1) & member[nb, j]])
+        if len(src) == 0:
+            continue
+        d = dijkstra(graph, directed=False, indices=src, min_only=True)[rows] * widths[j]
+        dist[:, 0] = np.where(A == j, d, dist[:, 0])
+        dist[:, 1] = np.where(B == j, d, dist[:, 1])
+    reached = np.isfinite(dist).any(axis=1)
+    sd = _scaled_distance(r[rows], widths)
+    closer_a = sd[np.arange(m), A] <= sd[np.arange(m), B]
+    choice = np.where(reached, np.where(dist[:, 0] <= dist[:, 1], A, B), np.where(closer_a, A, B))
+    assigned = np.where(count == 1, member.argmax(axis=1), -1)
+    assigned[rows] = choice
+    other = np.where(choice == A, B, A)
+    touches = np.bincount(pos, weights=assigned[nb] == other[pos], minlength=m) > 0
+    seam = touches & (choice == _PROXIMAL[A, B])
+    keep = ~seam
+    member[rows[keep], other[keep]] = False
+
+
+_PROXIMAL = np.full((NS, NS), -1, dtype=np.int64)
+for (_p, _d) in ADJACENT:
+    _i, _j = SECTIONS.index(_p), SECTIONS.index(_d)
+    _PROXIMAL[_i, _j] = _PROXIMAL[_j, _i] = _i
+
+
+def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray, fit: BodyFit,
+                 params: ClusterParams = ClusterParams(), tree=None, radius: float | None = None) -> np.ndarray:
+    """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
+
+    Parameters
+    ----------
+    member : (n, 11) bool
+    points : (n, 3) float, metres
+    r, h : (n, 11) float
+        From `section_coordinates`.
+    fit : BodyFit
+    params : ClusterParams
+    tree : scipy.spatial.cKDTree of ``points``, optional
+    radius : float, optional
+        Neighbour radius, metres (default: `neighbor_radius`).
+
+    Returns
+    -------
+    member : (n, 11) bool
+        Every point in at most two sections; two only at the joints of adjacent sections.
+    """
+    from scipy.spatial import cKDTree
+
+    tree = tree if tree is not None else cKDTree(points)
+    radius = radius if radius is not None else neighbor_radius(points, params, tree)
+    widths = section_widths(fit)
+    out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree)
+    rows = np.flatnonzero(out.sum(axis=1) == 2)
+    if len(rows) == 0:
+        return out
+    A, B = _pairs(out, rows)
+    at = at_joint_mask(points[rows], A, B, h[rows], fit, params.joint_reach)
+    if (~at).any():
+        resolve_two_sections(out, points, r, rows[~at], A[~at], B[~at], radius, tree,
+                             max_rounds=params.max_rounds)
+    if at.any():
+        resolve_joints(out, points, r, rows[at], A[at], B[at], radius, tree, widths)
+    return out
+
+
+def primary_section(member: np.ndarray, r: np.ndarray, widths: np.ndarray) -> np.ndarray:
+    """(n,) int8: the one section of each point (nearest surface among its sections), -1 for none."""
+    sd = np.where(member, _scaled_distance(r, widths), np.inf)
+    out = sd.argmin(axis=1).astype(np.int8)
+    out[~member.any(axis=1)] = -1
+    return out
+
+
+def cluster_points(points: np.ndarray, fit: BodyFit, method: str = "proposed",
+                   params: ClusterParams = ClusterParams(), coords=None, tree=None) -> np.ndarray:
+    """Cluster ``points`` (n, 3) into the fitted sections.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    fit : BodyFit
+    method : {"proposed", "simple"}
+        ``simple`` stops after the T_d threshold (the paper's baseline); ``proposed`` refines
+        by the distance distribution and settles the points in several sections.
+    params : ClusterParams
+    coords : tuple of three (n, 11) arrays, optional
+        Precomputed `section_coordinates`.
+
+    Returns
+    -------
+    member : (n, 11) bool
+    """
+    r, theta, h = coords if coords is not None else section_coordinates(points, fit)
+    widths = section_widths(fit)
+    member = simple_clustering(r, widths, params.t_d)
+    if method == "simple":
+        return member
+    from scipy.spatial import cKDTree
+
+    tree = tree if tree is not None else cKDTree(points)
+    radius = neighbor_radius(points, params, tree)
+    member = refine_by_distance(member, r, theta, h, fit, params)
+    if params.adopt_unlabeled:
+        member = adopt_unlabeled(member, points, radius, params.max_rounds)
+    return settle_multi(member, points, r, h, fit, params, tree=tree, radius=radius)

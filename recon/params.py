@@ -1,0 +1,235 @@
+"""Parameters of the reconstruction stages: one frozen dataclass per stage, and their bundle.
+
+Every field has the paper's value as default where the paper gives one (its section in the comment);
+where the paper is silent the choice is documented on the field. `ReconParams.from_overrides` sets
+fields by their flat, globally unique names, as the CLI's ``--param name=value`` does.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field, fields
+
+from . import ReconError
+
+
+@dataclass(frozen=True)
+class ClusterParams:
+    """Clustering of the points into body sections (paper section 3).
+
+    Attributes
+    ----------
+    t_d : float
+        Simple clustering: a point joins every section whose model surface is nearer than
+        ``t_d`` times the section's width (paper sections 3 and 4.2: 30 %).
+    mesh_theta, mesh_h : int
+        Cells of the (theta, h) mesh on each section's side surface (paper section 4.2: 10 x 10).
+    t_n_factor : float
+        T_n = the cell histogram's maximum frequency times this factor (paper section 4.2; the
+        factor is lost in the text). A cell is single-peaked, and kept whole, when more than T_n
+        points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep over the
+        shipped postures (see ``benchmarks/perf_recon.py --sweep-tn``).
+    otsu_bins : int
+        Bins of each cell's histogram of r, spanning that cell's r range (paper silent).
+    near_band : float
+        "r near the threshold": within this many bin widths of it (paper silent).
+    min_cell_points : int
+        Cells with fewer points are kept whole (too few to tell two peaks; paper silent).
+    neighbor_radius : float
+        Radius of the neighbourhood used by the multi-section rules, metres (paper section 3.2,
+        value not given). 0 means automatic: ``neighbor_spacing`` times the median
+        nearest-neighbour distance of the cloud.
+    neighbor_spacing : float
+        Automatic neighbour radius in median point spacings (used when ``neighbor_radius`` is 0).
+    joint_reach : float
+        A point is "at the joint" of two adjacent sections when it is nearer to the joint than
+        this times the larger of the two widths (paper silent: it says "at a joint").
+    both_few : float
+        Joint rule: the neighbours kept in both sections are "few" below this fraction of the
+        neighbours (paper section 3.2, value not given).
+    max_rounds : int
+        Rounds of the joint rule and of the three-or-more rule before the remaining points are
+        settled by their distance to the model (paper silent).
+    adopt_unlabeled : bool
+        Points left in no section after refinement take the sections of their nearest labelled
+        neighbour within the neighbour radius (paper silent; it leaves them out).
+    """
+
+    t_d: float = 0.30               # paper 3, 4.2: 30 % of each section's width
+    mesh_theta: int = 10            # paper 4.2
+    mesh_h: int = 10                # paper 4.2
+    t_n_factor: float = 0.5         # paper 4.2: value lost; chosen by sweep
+    otsu_bins: int = 16             # paper silent
+    near_band: float = 1.0          # paper silent, bin widths
+    min_cell_points: int = 12       # paper silent
+    neighbor_radius: float = 0.0    # paper 3.2: "a certain distance"; 0 = automatic
+    neighbor_spacing: float = 3.0   # paper silent
+    joint_reach: float = 0.75       # paper silent
+    both_few: float = 0.5           # paper 3.2: "sufficiently few"
+    max_rounds: int = 20            # paper silent
+    adopt_unlabeled: bool = True    # paper silent
+
+    def __post_init__(self):
+        _check(self.t_d > 0, "t_d", self.t_d, "a positive fraction of the section width")
+        for name in ("mesh_theta", "mesh_h", "otsu_bins", "max_rounds"):
+            _check(int(getattr(self, name)) >= 1, name, getattr(self, name), "an integer >= 1")
+        _check(self.otsu_bins >= 2, "otsu_bins", self.otsu_bins, "an integer >= 2")
+        _check(self.t_n_factor >= 0, "t_n_factor", self.t_n_factor, ">= 0")
+        _check(self.near_band > 0, "near_band", self.near_band, "> 0")
+        _check(self.min_cell_points >= 2, "min_cell_points", self.min_cell_points, ">= 2")
+        _check(self.neighbor_radius >= 0, "neighbor_radius", self.neighbor_radius, ">= 0 metres")
+        _check(self.neighbor_spacing > 0, "neighbor_spacing", self.neighbor_spacing, "> 0")
+        _check(self.joint_reach > 0, "joint_reach", self.joint_reach, "> 0")
+        _check(0 <= self.both_few <= 1, "both_few", self.both_few, "a fraction in [0, 1]")
+
+
+@dataclass(frozen=True)
+class SurfaceParams:
+    """Per-section surfaces by 2D Delaunay on the model surface (paper section 3.3).
+
+    Attributes
+    ----------
+    seam_overlap : float
+        Points within this angle (radians) of theta = 0 are copied past theta = 2*pi and back,
+        so that the seam gets triangles (paper 3.3, width not given).
+    cap_overlap : float
+        The column and cap projections overlap by this many mean radii along the axis
+        (paper 3.3, width not given).
+    max_edge_factor : float
+        Triangles with a 3D edge longer than this times the section's median point spacing are
+        removed. 0 keeps every triangle, as the paper does: holes in the data are covered by a
+        few large triangles (paper 4.2).
+    hull_edge_factor : float
+        Delaunay triangulates the convex hull of the projected points: triangles on the
+        triangulation's boundary with a 3D edge longer than this times the median spacing are
+        peeled off, repeatedly, so that open ends and boundary concavities get no long slivers
+        (paper silent; interior holes are not touched).
+    min_section_points : int
+        A section with fewer points is skipped with a warning (paper silent).
+    """
+
+    seam_overlap: float = 0.6       # paper 3.3, radians
+    cap_overlap: float = 0.35       # paper 3.3, mean radii
+    max_edge_factor: float = 0.0    # paper 4.2: holes are covered (0 = no limit)
+    hull_edge_factor: float = 4.0   # paper silent
+    min_section_points: int = 10    # paper silent
+
+    def __post_init__(self):
+        _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
+        _check(0 < self.cap_overlap <= 2, "cap_overlap", self.cap_overlap, "in (0, 2] mean radii")
+        _check(self.max_edge_factor >= 0, "max_edge_factor", self.max_edge_factor, ">= 0 (0 = no limit)")
+        _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
+        _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
+
+
+def _check(ok, name, value, what):
+    if not ok:
+        raise ReconError(f"parameter {name}={value!r}: must be {what}")
+
+
+def _fit_params_class():
+    """The posture estimation's FitParams, or None while `recon.posture` is not there."""
+    try:
+        from .posture import FitParams
+    except ImportError:
+        return None
+    return FitParams
+
+
+def _default_fit():
+    cls = _fit_params_class()
+    return cls() if cls is not None else None
+
+
+@dataclass(frozen=True)
+class ReconParams:
+    """All parameters of the reconstruction: ``fit`` (posture estimation), ``cluster``, ``surface``."""
+
+    fit: object = field(default_factory=_default_fit)
+    cluster: ClusterParams = field(default_factory=ClusterParams)
+    surface: SurfaceParams = field(default_factory=SurfaceParams)
+
+    def stages(self) -> dict:
+        """{stage name: that stage's dataclass} for the stages present."""
+        return {k: v for k, v in (("fit", self.fit), ("cluster", self.cluster), ("surface", self.surface))
+                if v is not None}
+
+    def to_dict(self) -> dict:
+        """Flat {name: value} of every parameter."""
+        out = {}
+        for stage in self.stages().values():
+            out.update(dataclasses.asdict(stage))
+        return out
+
+    @classmethod
+    def from_overrides(cls, overrides: dict | None = None) -> "ReconParams":
+        """Default parameters with some fields set by their flat names.
+
+        Parameters
+        ----------
+        overrides : dict of str to value
+            E.g. ``{"t_d": 0.3, "t_n_factor": 0.5}``; strings (from the CLI) are converted to the
+            field's type.
+
+        Raises
+        ------
+        ReconError
+            An unknown name, or a value of the wrong type or out of range.
+        """
+        base = cls()
+        stages = base.stages()
+        owner = {f.name: stage for stage, obj in stages.items() for f in fields(obj)}
+        changes: dict = {stage: {} for stage in stages}
+        for name, value in (overrides or {}).items():
+            if name not in owner:
+                known = ", ".join(sorted(owner))
+                raise ReconError(f"unknown parameter {name!r} (known: {known})")
+            stage = owner[name]
+            current = getattr(stages[stage], name)
+            changes[stage][name] = _convert(name, value, current)
+        built = {}
+        for stage, obj in stages.items():
+            try:
+                built[stage] = dataclasses.replace(obj, **changes[stage]) if changes[stage] else obj
+            except ReconError:
+                raise
+            except (TypeError, ValueError) as exc:
+                raise ReconError(f"bad {stage} parameter: {exc}") from None
+        return cls(**built)
+
+
+def _convert(name, value, current):
+    """``value`` converted to the type of the field's default ``current``."""
+    if isinstance(value, str):
+        text = value.strip()
+        try:
+            if isinstance(current, bool):
+                if text.lower() in ("1", "true", "yes", "on"):
+                    return True
+                if text.lower() in ("0", "false", "no", "off"):
+                    return False
+                raise ValueError
+            if isinstance(current, int):
+                return int(text)
+            if isinstance(current, float) or current is None:
+                return float(text)
+            if isinstance(current, tuple):
+                return tuple(float(x) for x in text.split(","))
+        except ValueError:
+            raise ReconError(f"parameter {name}={value!r}: expected a {type(current).__name__}") from None
+        return text
+    if isinstance(current, bool):
+        if not isinstance(value, (bool, int)):
+            raise ReconError(f"parameter {name}={value!r}: expected a bool")
+        return bool(value)
+    if isinstance(current, int) and not isinstance(current, bool):
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ReconError(f"parameter {name}={value!r}: expected an integer")
+        return value
+    if isinstance(current, float):
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ReconError(f"parameter {name}={value!r}: expected a number")
+        return float(value)
+    return value

@@ -1,0 +1,221 @@
+"""The whole reconstruction: posture estimation, clustering, per-section surfaces (`reconstruct`)."""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import ReconError
+from .model import SECTIONS, BodyFit
+from .params import ReconParams
+
+METHODS = ("proposed", "simple")
+
+#: Fewer points than this cannot make a body surface.
+MIN_POINTS = 100
+
+
+@dataclass(frozen=True, eq=False)
+class Reconstruction:
+    """A reconstructed body surface.
+
+    Attributes
+    ----------
+    vertices : (n, 3) float
+        The input points, metres (mesh vertices are the input points, by index; unused points
+        are in no face).
+    faces : (m, 3) int
+        Triangles, outward winding.
+    face_section : (m,) int8
+        Section of each face (index into `recon.model.SECTIONS`).
+    point_sections : (n, 11) bool
+        Final section memberships of each point (two at the joint seams, none for outliers).
+    fit : BodyFit
+    times : dict of str to float
+        Seconds per stage: the fit's stages prefixed ``fit_``, then ``coords``, ``cluster``,
+        ``surface`` and ``total``.
+    params : ReconParams
+    method : str
+    skipped : tuple of str
+        Sections skipped for too few points.
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    face_section: np.ndarray
+    point_sections: np.ndarray
+    fit: BodyFit
+    times: dict = field(default_factory=dict)
+    params: ReconParams | None = None
+    method: str = "proposed"
+    skipped: tuple = ()
+
+    @property
+    def point_section(self) -> np.ndarray:
+        """(n,) int8: one section per point (the first of its sections), -1 for none."""
+        out = self.point_sections.argmax(axis=1).astype(np.int8)
+        out[~self.point_sections.any(axis=1)] = -1
+        return out
+
+    def to_trimesh(self):
+        """The mesh as a `trimesh.Trimesh` (vertex order kept, unused points included)."""
+        import trimesh
+
+        return trimesh.Trimesh(self.vertices, self.faces, process=False)
+
+    def write(self, path) -> Path:
+        """Write the mesh as binary PLY with a face property ``section``; see `write_mesh`."""
+        return write_mesh(path, self.vertices, self.faces, self.face_section)
+
+
+def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.ndarray) -> Path:
+    """Write a binary little-endian PLY: vertex x, y, z (float32), face vertex_indices and section.
+
+    Parameters
+    ----------
+    path : str or path
+    vertices : (n, 3) float, metres
+    faces : (m, 3) int
+    face_section : (m,) int
+    """
+    path = Path(path)
+    v = np.asarray(vertices, dtype="<f4")
+    f = np.asarray(faces)
+    header = (
+        "ply\nformat binary_little_endian 1.0\ncomment bodyscan reconstruction; face section indexes "
+        + " ".join(SECTIONS) + f"\nelement vertex {len(v)}\nproperty float x\nproperty float y\n"
+        f"property float z\nelement face {len(f)}\nproperty list uchar int vertex_indices\n"
+        "property uchar section\nend_header\n"
+    )
+    rec = np.zeros(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,)), ("section", "u1")])
+    rec["n"] = 3
+    rec["idx"] = f
+    rec["section"] = np.asarray(face_section, dtype=np.int64) & 0xFF
+    try:
+        with open(path, "wb") as fh:
+            fh.write(header.encode("ascii"))
+            fh.write(v.tobytes())
+            fh.write(rec.tobytes())
+    except OSError as exc:
+        raise ReconError(f"{path}: cannot write the mesh ({exc.strerror or exc})") from None
+    return path
+
+
+def check_points(points) -> np.ndarray:
+    """``points`` as a (n, 3) float64 array; raise `ReconError` for anything unusable."""
+    p = np.asarray(points)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ReconError(f"points must be an (n, 3) array, got shape {p.shape}")
+    if not np.issubdtype(p.dtype, np.number):
+        raise ReconError(f"points must be numbers, got {p.dtype}")
+    p = p.astype(np.float64)
+    bad = ~np.isfinite(p).all(axis=1)
+    if bad.any():
+        raise ReconError(f"{int(bad.sum())} points are NaN or infinite; remove them first")
+    if len(p) < MIN_POINTS:
+        raise ReconError(f"only {len(p)} points; a body surface needs at least {MIN_POINTS}")
+    extent = float(np.ptp(p, axis=0).max())
+    if extent > 3.0:
+        raise ReconError(f"the cloud spans {extent:.4g} units; coordinates must be metres "
+                         "(divide millimetres by 1000)")
+    if extent < 0.3:
+        raise ReconError(f"the cloud spans only {extent:.4g} units; is it a whole body, in metres?")
+    return p
+
+
+def _check_view_dir(view_dir, n):
+    if view_dir is None:
+        return None
+    vd = np.asarray(view_dir, dtype=np.float64)
+    if vd.shape not in ((3,), (n, 3)):
+        raise ReconError(f"view_dir must be (3,) or ({n}, 3), got shape {vd.shape}")
+    if not np.isfinite(vd).all():
+        raise ReconError("view_dir holds NaN or infinite values")
+    return vd
+
+
+def estimate_fit(points, params: ReconParams, view_dir=None) -> BodyFit:
+    """Posture estimation through `recon.estimate_posture` (raises `ReconError` if unavailable)."""
+    try:
+        from .posture import estimate_posture
+    except ImportError:
+        raise ReconError("posture estimation (recon.posture) is not available in this build; "
+                         "pass a fitted model with fit= (or --fit FIT.json)") from None
+    if params.fit is None:
+        return estimate_posture(points, view_dir=view_dir)
+    return estimate_posture(points, params.fit, view_dir=view_dir)
+
+
+def reconstruct(points, method: str = "proposed", params: ReconParams | None = None, *,
+                view_dir=None, fit: BodyFit | None = None) -> Reconstruction:
+    """Reconstruct a body surface from a point cloud (paper sections 2 and 3).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        The cloud (+z up).
+    method : {"proposed", "simple"}
+        ``proposed``: clustering refined by the distance distribution and the multi-section rules;
+        ``simple``: the paper's baseline, T_d threshold only.
+    params : ReconParams, optional
+        Default: `ReconParams` defaults (the paper's values).
+    view_dir : (n, 3) or (3,) float, optional
+        Unit directions toward the sensor, for orientation (and the fit).
+    fit : BodyFit, optional
+        Use this posture instead of estimating it (e.g. an oracle posture).
+
+    Returns
+    -------
+    Reconstruction
+
+    Raises
+    ------
+    ReconError
+        Unusable points, method or parameters, or nothing could be reconstructed.
+    """
+    from .cluster import cluster_points, section_coordinates
+    from .surface import reconstruct_surfaces
+
+    t_start = time.perf_counter()
+    if method not in METHODS:
+        raise ReconError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+    params = params if params is not None else ReconParams()
+    if not isinstance(params, ReconParams):
+        raise ReconError(f"params must be a ReconParams, got {type(params).__name__}")
+    p = check_points(points)
+    vd = _check_view_dir(view_dir, len(p))
+    times = {}
+    if fit is None:
+        t0 = time.perf_counter()
+        fit = estimate_fit(p, params, vd)
+        times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
+        times["fit"] = time.perf_counter() - t0
+    elif not isinstance(fit, BodyFit):
+        raise ReconError(f"fit must be a BodyFit, got {type(fit).__name__}")
+    if not fit.sections:
+        raise ReconError("the fitted model has no sections: nothing to reconstruct")
+
+    t0 = time.perf_counter()
+    coords = section_coordinates(p, fit)
+    times["coords"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    member = cluster_points(p, fit, method, params.cluster, coords=coords)
+    times["cluster"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        faces, face_section, skipped = reconstruct_surfaces(p, member, fit, params.surface, vd,
+                                                            drop_inner=method == "proposed")
+    for w in caught:  # re-issue from here, once each
+        warnings.warn(str(w.message), w.category, stacklevel=2)
+    times["surface"] = time.perf_counter() - t0
+    times["total"] = time.perf_counter() - t_start
+    if len(faces) == 0:
+        raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
+                         "clustered points (is the fitted model placed on the cloud?)")
+    return Reconstruction(vertices=p, faces=faces, face_section=face_section, point_sections=member,
+                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped))

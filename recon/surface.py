@@ -1,0 +1,363 @@
+"""Per-section surfaces by 2D Delaunay on the model surface, and their merge (paper section 3.3).
+
+Each section's points are projected onto its model surface: onto the column as ``u = R*theta,
+v = h``, onto a closed cap as ``u = R*phi*cos(theta), v = R*phi*sin(theta)`` (``phi`` the polar
+angle from the cap's pole); an open end projects onto the extended column. Each chart is
+triangulated by `scipy.spatial.Delaunay` and the triangles are applied to the 3D points.
+
+Seams, as in the paper: the points within ``seam_overlap`` of theta = 0 are copied past 2*pi (and
+back), the column and cap charts overlap by ``cap_overlap`` radii; afterwards a triangle is kept
+by the chart that owns its centroid (column: ``0 <= u < 2*pi*R`` and ``0 <= v <= length``; cap:
+beyond the column's end), copies are dropped, and cap triangles whose centroid falls on a kept
+column triangle are removed as overlapping.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from .model import SECTIONS, BodyFit, SectionShape
+from .params import SurfaceParams
+
+TWO_PI = 2 * np.pi
+
+
+def median_spacing(points: np.ndarray) -> float:
+    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point."""
+    from scipy.spatial import cKDTree
+
+    if len(points) < 2:
+        return 0.0
+    d, _ = cKDTree(points).query(points, k=2)
+    return float(np.median(d[:, 1]))
+
+
+def max_edge_length(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,) longest 3D edge (metres) of each of ``faces`` (k, 3) over ``points`` (n, 3)."""
+    p = points[faces]
+    e = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 1], p[:, 0] - p[:, 2]], axis=1)
+    return np.linalg.norm(e, axis=2).max(axis=1)
+
+
+def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
+    """(k,) bool alive mask after repeatedly removing boundary triangles flagged ``too_long``.
+
+    A triangle of ``faces`` (k, 3) is on the boundary when one of its edges belongs to no other
+    alive triangle. Delaunay triangulates the convex hull of the projected points; peeling from
+    the boundary inwards removes the hull's long slivers at open ends and the long triangles of
+    concavities open to the boundary, but keeps those covering interior holes (as the paper does).
+    """
+    k = len(faces)
+    alive = np.ones(k, dtype=bool)
+    if k == 0 or not too_long.any():
+        return alive
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    _, edge = np.unique(e, axis=0, return_inverse=True)
+    edge = edge.reshape(3, k).T                            # (k, 3) edge ids of each face
+    n_edges = int(edge.max()) + 1
+    for _ in range(k):
+        use = np.bincount(edge[alive].ravel(), minlength=n_edges)
+        cand = alive & too_long & (use[edge] == 1).any(axis=1)
+        if not cand.any():
+            break
+        alive[cand] = False
+    return alive
+
+
+def _delaunay(uv):
+    from scipy.spatial import Delaunay, QhullError
+
+    if len(uv) < 3:
+        return None
+    try:
+        return Delaunay(uv)
+    except (QhullError, ValueError):  # all points collinear or coincident
+        return None
+
+
+def column_chart(theta: np.ndarray, h: np.ndarray, radius: float, seam_overlap: float):
+    """Column projection with seam copies.
+
+    Parameters
+    ----------
+    theta, h : (m,) float
+        Section coordinates, radians and metres.
+    radius : float
+        Radius R of the projection column, metres.
+    seam_overlap : float
+        Points within this angle of theta = 0 (of 2*pi) are also copied past 2*pi (before 0).
+
+    Returns
+    -------
+    uv : (m', 2) float
+        ``u = R*theta``, ``v = h``, originals first, then copies.
+    src : (m',) int
+        Index into the m inputs of each row.
+    """
+    lo = np.flatnonzero(theta < seam_overlap)
+    hi = np.flatnonzero(theta > TWO_PI - seam_overlap)
+    src = np.concatenate([np.arange(len(theta)), lo, hi])
+    t = np.concatenate([theta, theta[lo] + TWO_PI, theta[hi] - TWO_PI])
+    return np.column_stack([radius * t, h[src]]), src
+
+
+def cap_chart(local: np.ndarray, shape: SectionShape, end: int):
+    """Cap projection ``u = R*phi*cos(theta), v = R*phi*sin(theta)`` around one end.
+
+    Parameters
+    ----------
+    local : (m, 3) float
+        Points in the section frame (`SectionShape.local`).
+    shape : SectionShape
+    end : {0, 1}
+        Start or end cap.
+
+    Returns
+    -------
+    uv : (m, 2) float
+        Chart coordinates, metres (R is the mean radius).
+    phi : (m,) float
+        Polar angle from the cap's pole, radians (pi/2 on the column's end circle).
+    """
+    a, b = shape.radii
+    c = shape.caps[end]
+    x, y = local[:, 0] / a, local[:, 1] / b
+    e = (-local[:, 2] if end == 0 else local[:, 2] - shape.length) / c
+    phi = np.arctan2(np.hypot(x, y), e)
+    theta = np.arctan2(local[:, 1], local[:, 0])
+    R = float(shape.radii.mean())
+    return np.column_stack([R * phi * np.cos(theta), R * phi * np.sin(theta)]), phi
+
+
+def section_surface(points: np.ndarray, shape: SectionShape,
+                    params: SurfaceParams = SurfaceParams()) -> np.ndarray:
+    """Triangulate one section's points by Delaunay on its model surface.
+
+    Parameters
+    ----------
+    points : (m, 3) float, metres
+        The points clustered into the section.
+    shape : SectionShape
+    params : SurfaceParams
+
+    Returns
+    -------
+    faces : (k, 3) int
+        Triangles over ``points`` (unoriented; see `orient_faces`).
+    """
+    m = len(points)
+    if m < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    spacing = max(median_spacing(points), 1e-9)
+    hull_limit = params.hull_edge_factor * spacing
+    R = float(shape.radii.mean())
+    L = shape.length
+    _, theta, h = shape.coords(points)
+    local = shape.local(points)
+    band = params.cap_overlap * R
+    h_lo = 0.0 if shape.closed[0] else -np.inf
+    h_hi = L if shape.closed[1] else np.inf
+
+    parts = []
+    # column chart
+    sel = np.flatnonzero((h >= h_lo - band) & (h <= h_hi + band))
+    if len(sel) >= 3:
+        uv, src = column_chart(theta[sel], h[sel], R, params.seam_overlap)
+        tri = _delaunay(uv)
+        if tri is not None:
+            simp = tri.simplices
+            faces = sel[src[simp]]
+            cen = uv[simp].mean(axis=1)
+            own = (cen[:, 0] >= 0) & (cen[:, 0] < TWO_PI * R) & (cen[:, 1] >= h_lo) & (cen[:, 1] <= h_hi)
+            # a triangle around half the column or more is a hull artefact that would close an
+            # open end into a fan (its copies make the seam region look like a closed loop)
+            narrow = np.ptp(uv[simp][:, :, 0], axis=1) < np.pi * R
+            parts.append(faces[own & narrow])
+    # cap charts: each fills the column's end loop
+    col_faces = parts[0] if parts else np.zeros((0, 3), dtype=np.int64)
+    used = np.zeros(m, dtype=bool)
+    used[col_faces.ravel()] = True
+    loops = _end_loops(col_faces, h, L)
+    for end in (0, 1):
+        if not shape.closed[end]:
+            continue
+        uv_all, phi = cap_chart(local, shape, end)
+        beyond = (h < 0) if end == 0 else (h > L)
+        loop = loops[end]
+        sel = np.flatnonzero((beyond & ~used & (phi <= np.pi / 2 + params.cap_overlap)))
+        sel = np.union1d(sel, loop)
+        if len(sel) < 3:
+            continue
+        tri = _delaunay(uv_all[sel])
+        if tri is None:
+            continue
+        faces = sel[tri.simplices]
+        cen = uv_all[faces].mean(axis=1)
+        if len(loop) >= 3:
+            # inside the column's end loop, seen from the pole (the loop is star-shaped about it)
+            lt = np.arctan2(uv_all[loop, 1], uv_all[loop, 0])
+            lr = np.hypot(uv_all[loop, 0], uv_all[loop, 1])
+            o = np.argsort(lt)
+            limit = np.interp(np.arctan2(cen[:, 1], cen[:, 0]), lt[o], lr[o], period=TWO_PI)
+            own = np.hypot(cen[:, 0], cen[:, 1]) < limit
+        else:  # no column to join: the cap keeps what lies beyond the column's end
+            hc = h[faces].mean(axis=1)
+            own = hc < 0 if end == 0 else hc > L
+        parts.append(faces[own])
+    faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
+    faces = faces[peel_boundary(faces, max_edge_length(points, faces) > hull_limit)]
+    if params.max_edge_factor > 0 and len(faces):
+        faces = faces[max_edge_length(points, faces) <= params.max_edge_factor * spacing]
+    return unique_faces(faces)
+
+
+def _end_loops(faces: np.ndarray, h: np.ndarray, length: float):
+    """Vertices of the boundary edges of column ``faces`` near the start and near the end."""
+    if len(faces) == 0:
+        return [np.zeros(0, dtype=np.int64)] * 2
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    b = u[c == 1]
+    hb = h[b].mean(axis=1)
+    return [np.unique(b[hb < length / 2]), np.unique(b[hb >= length / 2])]
+
+
+def unique_faces(faces: np.ndarray) -> np.ndarray:
+    """``faces`` (k, 3) without repeats of the same vertex set (first kept, order preserved)."""
+    if len(faces) == 0:
+        return faces.reshape(0, 3).astype(np.int64)
+    key = np.sort(faces, axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    return faces[np.sort(first)].astype(np.int64)
+
+
+def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k,) area of each face, square metres."""
+    p = points[faces]
+    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+
+
+def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
+    """(k, 3) unit outward direction of the section model at points ``at`` (k, 3)."""
+    q = shape.local(at)
+    e = np.zeros(len(q))
+    if shape.closed[0]:
+        e = np.where(q[:, 2] < 0, q[:, 2], e)
+    if shape.closed[1]:
+        e = np.where(q[:, 2] > shape.length, q[:, 2] - shape.length, e)
+    d = np.column_stack([q[:, 0], q[:, 1], e]) @ shape.frame
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
+def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
+                 view_dir: np.ndarray | None = None, min_agreement: float = 0.5) -> np.ndarray:
+    """Faces (k, 3) with their winding flipped where needed so that normals point outward.
+
+    The outward side is the one the sensor saw: the mean viewing direction of the face's vertices
+    (``view_dir`` (n, 3) or (3,), unit, toward the camera) when it is clear (length at least
+    ``min_agreement``, i.e. the vertices were seen from about the same side), otherwise the
+    model's outward direction at the face's centroid.
+    """
+    faces = faces.copy()
+    if len(faces) == 0:
+        return faces
+    p = points[faces]
+    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    centroid = p.mean(axis=1)
+    ref = np.zeros_like(centroid)
+    for j, name in enumerate(SECTIONS):
+        sel = face_section == j
+        if sel.any() and name in fit.sections:
+            ref[sel] = model_outward(fit.sections[name], centroid[sel])
+    if view_dir is not None:
+        vd = np.asarray(view_dir, dtype=float)
+        mean = vd[faces].mean(axis=1) if vd.ndim == 2 else np.broadcast_to(vd, ref.shape)
+        clear = np.linalg.norm(mean, axis=1) >= min_agreement
+        ref[clear] = mean[clear]
+    flip = np.einsum("ij,ij->i", normal, ref) < 0
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
+    """Join the section surfaces through their shared points.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    section_faces : dict of int to (k, 3) int
+        Per section index, faces over global point indices.
+    member : (n, 11) bool
+        Final memberships; triangles made only of points in two or more sections lie inside the
+        body (paper 3.3) and are removed when ``drop_inner``.
+    drop_inner : bool
+        False for the simple baseline, where half the points are in several sections and the
+        paper's Fig. 11 shows a whole body: there the sections' surfaces are simply united.
+
+    Returns
+    -------
+    faces : (m, 3) int
+    face_section : (m,) int8
+        Duplicates across sections, and faces of zero area, removed.
+    """
+    fs = [f for f in section_faces.values() if len(f)]
+    if not fs:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
+    faces = np.concatenate(fs).astype(np.int64)
+    sec = np.concatenate([np.full(len(f), j, dtype=np.int8) for j, f in section_faces.items() if len(f)])
+    multi = member.sum(axis=1) >= 2
+    if drop_inner:
+        keep = ~multi[faces].all(axis=1)
+        faces, sec = faces[keep], sec[keep]
+    key = np.sort(faces, axis=1)
+    _, first = np.unique(key, axis=0, return_index=True)
+    first = np.sort(first)
+    faces, sec = faces[first], sec[first]
+    keep = face_areas(points, faces) > 1e-12
+    return faces[keep], sec[keep]
+
+
+def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
+                         params: SurfaceParams = SurfaceParams(), view_dir: np.ndarray | None = None,
+                         drop_inner: bool = True):
+    """Per-section surfaces, merged and oriented outward.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    member : (n, 11) bool
+        Section memberships from `recon.cluster.cluster_points`.
+    fit : BodyFit
+    params : SurfaceParams
+    view_dir : (n, 3) or (3,) float, optional
+        Unit directions toward the sensor, for orientation.
+    drop_inner : bool
+        Remove triangles made only of points in several sections (see `merge_sections`).
+
+    Returns
+    -------
+    faces : (m, 3) int
+        Triangles over ``points``, outward winding.
+    face_section : (m,) int8
+    skipped : list of str
+        Sections skipped for having fewer than ``params.min_section_points`` points (warned).
+    """
+    per = {}
+    skipped = []
+    for j, name in enumerate(SECTIONS):
+        if name not in fit.sections:
+            continue
+        idx = np.flatnonzero(member[:, j])
+        if len(idx) < params.min_section_points:
+            warnings.warn(f"section {name}: only {len(idx)} points (fewer than "
+                          f"min_section_points={params.min_section_points}); skipped", stacklevel=2)
+            skipped.append(name)
+            continue
+        f = section_surface(points[idx], fit.sections[name], params)
+        per[j] = idx[f]
+    faces, sec = merge_sections(points, per, member, drop_inner)
+    faces = orient_faces(points, faces, sec, fit, view_dir)
+    return faces, sec, skipped

@@ -1,0 +1,147 @@
+"""Clustering into body sections: each rule against scenes whose answer is known."""
+
+import numpy as np
+import pytest
+
+from recon import ReconError
+from recon import cluster as C
+from recon.model import SECTIONS, BodyFit, SectionShape
+from recon.params import ClusterParams, ReconParams
+
+X = np.array([1.0, 0, 0])
+I = {name: i for i, name in enumerate(SECTIONS)}
+
+
+def column_points(shape, spacing=0.008, seed=0, noise=0.0):
+    """Points on the side of a section's column, roughly ``spacing`` apart (m, 3)."""
+    rng = np.random.default_rng(seed)
+    n = int(2 * np.pi * shape.radii.mean() * shape.length / spacing ** 2)
+    t = rng.uniform(0, 2 * np.pi, n)
+    h = rng.uniform(0, shape.length, n)
+    R = shape.radius_at(t) + rng.normal(0, noise, n)
+    fx, fy, z = shape.frame
+    return shape.start + (R * np.cos(t))[:, None] * fx + (R * np.sin(t))[:, None] * fy + h[:, None] * z
+
+
+def test_simple_clustering_is_the_t_d_threshold():
+    shape = SectionShape("waist", [0, 0, 0], [0, 0, 0.4], [0.1, 0.1], X)
+    fit = BodyFit(sections={"waist": shape}, joints={})
+    # points at known distances outside the column, mid-height
+    d = np.array([0.0, 0.02, 0.059, 0.061, 0.2])
+    P = np.column_stack([0.1 + d, np.zeros(5), np.full(5, 0.2)])
+    r, _, _ = C.section_coordinates(P, fit)
+    assert np.allclose(r[:, I["waist"]], d)
+    m = C.simple_clustering(r, C.section_widths(fit), t_d=0.3)     # T_d = 0.3 * 0.2 m = 6 cm
+    assert m[:, I["waist"]].tolist() == [True, True, True, False, False]
+    assert not m[:, [i for i in range(11) if i != I["waist"]]].any()
+
+
+def test_otsu_splits_two_peaks_and_keeps_one_peak():
+    rng = np.random.default_rng(0)
+    one = rng.normal(0.0, 0.003, 200)
+    two = np.concatenate([rng.normal(0.0, 0.003, 150), rng.normal(0.05, 0.003, 50)])
+    cell = np.repeat([0, 1], 200)
+    thr, split = C.otsu_cells(cell, np.concatenate([one, two]), 2, t_n_factor=0.5)
+    assert split.tolist() == [False, True]
+    assert 0.005 < thr[1] < 0.045                                    # between the peaks
+    # few points: never split
+    _, split = C.otsu_cells(np.zeros(5, int), two[[0, 1, 2, 160, 161]], 1, min_points=12)
+    assert not split[0]
+
+
+def test_otsu_threshold_matches_brute_force():
+    rng = np.random.default_rng(3)
+    v = np.concatenate([rng.normal(0, 1, 300), rng.normal(4, 0.5, 100)])
+    thr, _ = C.otsu_cells(np.zeros(len(v), int), v, 1, bins=16)
+    edges = np.linspace(v.min(), v.max(), 17)
+    best = max(edges[1:-1], key=lambda t: (v < t).mean() * (v >= t).mean()
+               * (v[v < t].mean() - v[v >= t].mean()) ** 2)
+    assert np.isclose(thr[0], best)
+
+
+def two_columns(gap=0.02, spacing=0.008):
+    """A waist column and a forearm beside it, ``gap`` apart; both fully sampled."""
+    waist = SectionShape("waist", [0, 0, 0.9], [0, 0, 1.3], [0.15, 0.15], X, closed=(False, False))
+    x = 0.15 + gap + 0.04
+    arm = SectionShape("forearm_l", [x, 0, 1.3], [x, 0, 0.9], [0.04, 0.04], X, closed=(False, False))
+    fit = BodyFit(sections={"waist": waist, "forearm_l": arm}, joints={})
+    pw, pa = column_points(waist, spacing, 0), column_points(arm, spacing, 1)
+    P = np.vstack([pw, pa])
+    truth = np.concatenate([np.full(len(pw), I["waist"]), np.full(len(pa), I["forearm_l"])])
+    return P, truth, fit
+
+
+def test_simple_clustering_mixes_an_arm_beside_the_body_and_proposed_separates_it():
+    P, truth, fit = two_columns()
+    simple = C.cluster_points(P, fit, "simple")
+    assert (simple.sum(axis=1) == 2).mean() > 0.05                  # T_d = 9 cm swallows the arm
+    m = C.cluster_points(P, fit, "proposed")
+    assert (m.sum(axis=1) == 1).all()                               # not adjacent: one section each
+    assert (m[np.arange(len(P)), truth]).mean() > 0.99
+
+
+def test_refinement_removes_the_far_peak_only_where_another_section_claims_it():
+    P, truth, fit = two_columns()
+    r, th, h = C.section_coordinates(P, fit)
+    m0 = C.simple_clustering(r, C.section_widths(fit), 0.3)
+    m1 = C.refine_by_distance(m0, r, th, h, fit, ClusterParams())
+    arm_in_waist0 = m0[truth == I["forearm_l"], I["waist"]].sum()
+    arm_in_waist1 = m1[truth == I["forearm_l"], I["waist"]].sum()
+    assert arm_in_waist1 < 0.5 * arm_in_waist0
+    assert m1[truth == I["waist"], I["waist"]].all()                # the waist keeps all its points
+    assert (m1.sum(axis=1) >= 1).all()
+
+
+def test_three_or_more_copies_from_the_nearest_point_with_fewer():
+    P = np.array([[0, 0, 0], [0.01, 0, 0], [0.5, 0, 0], [0.51, 0, 0.0], [0.53, 0, 0]])
+    m = np.zeros((5, 11), bool)
+    m[0, [0, 1, 2]] = True          # three sections
+    m[1, [1, 2]] = True             # nearest, two sections
+    m[2, [3, 4, 5, 6]] = True       # four sections
+    m[3, [5, 6, 7]] = True          # nearest has three: fewer than four
+    m[4, [6, 7]] = True
+    r = np.zeros((5, 11))
+    out = C.reduce_to_two(m, P, r, np.ones(11))
+    assert out[0].nonzero()[0].tolist() == [1, 2]
+    assert out.sum(axis=1).max() <= 2
+    assert set(out[2].nonzero()[0]) <= {5, 6, 7}
+    assert out[3].nonzero()[0].tolist() == [6, 7]
+
+
+def test_joint_rule_leaves_a_thin_seam_at_the_junction():
+    """Upper arm and forearm, straight, meeting at the elbow: both-labelled points become a seam."""
+    upper = SectionShape("upper_arm_l", [0, 0, 1.4], [0, 0, 1.1], [0.045, 0.045], X)
+    fore = SectionShape("forearm_l", [0, 0, 1.1], [0, 0, 0.8], [0.045, 0.045], X)
+    fit = BodyFit(sections={"upper_arm_l": upper, "forearm_l": fore},
+                  joints={"elbow_l": np.array([0, 0, 1.1])})
+    tube = SectionShape("x", [0, 0, 0.8], [0, 0, 1.4], [0.045, 0.045], X, closed=(False, False))
+    P = column_points(tube, 0.006)
+    m = C.cluster_points(P, fit, "proposed")
+    up, fo = m[:, I["upper_arm_l"]], m[:, I["forearm_l"]]
+    z = P[:, 2]
+    assert (up | fo).all()
+    assert up[z > 1.13].all() and not fo[z > 1.13].any()
+    assert fo[z < 1.07].all() and not up[z < 1.07].any()
+    both = up & fo
+    assert 0 < both.sum() < 0.06 * len(P)                          # a seam, not the whole overlap
+    assert np.abs(z[both] - 1.1).max() < 0.03
+
+
+def test_neighbor_radius_follows_the_spacing():
+    P, _, _ = two_columns(spacing=0.01)
+    auto = C.neighbor_radius(P, ClusterParams())
+    assert 0.01 < auto < 0.04
+    assert C.neighbor_radius(P, ClusterParams(neighbor_radius=0.05)) == 0.05
+
+
+def test_params_overrides_resolve_names_and_reject_bad_ones():
+    p = ReconParams.from_overrides({"t_d": "0.25", "mesh_theta": 12, "max_edge_factor": "3"})
+    assert p.cluster.t_d == 0.25 and p.cluster.mesh_theta == 12 and p.surface.max_edge_factor == 3.0
+    with pytest.raises(ReconError, match="unknown parameter 'td'"):
+        ReconParams.from_overrides({"td": 0.3})
+    with pytest.raises(ReconError, match="t_d"):
+        ReconParams.from_overrides({"t_d": -1})
+    with pytest.raises(ReconError, match="mesh_h"):
+        ReconParams.from_overrides({"mesh_h": "ten"})
+    with pytest.raises(ReconError, match="mesh_h"):
+        ReconParams.from_overrides({"mesh_h": 2.5})

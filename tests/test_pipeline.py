@@ -1,0 +1,187 @@
+"""The whole reconstruction: analytic capsule body, the shipped postures, bad input, the PLY and CLI."""
+
+import warnings
+
+import numpy as np
+import pytest
+
+from recon import ReconError, ReconParams, reconstruct
+from recon.model import SECTIONS, BodyFit, SectionShape
+from recon.surface import model_outward
+
+X = np.array([1.0, 0, 0])
+ARMS = [SECTIONS.index(s) for s in ("upper_arm_l", "upper_arm_r", "forearm_l", "forearm_r")]
+TORSO = [SECTIONS.index(s) for s in ("chest", "waist")]
+
+
+def capsule_body(gap=0.02, pixel=0.01, seed=0):
+    """A body of model sections (arms ``gap`` from the torso, thighs ``gap`` apart), scanned from
+    the front and the back on a ``pixel`` grid (z-buffer, so inner sides are occluded).
+
+    Returns points (n, 3), true section (n,), true normal (n, 3), view_dir (n, 3), the exact fit.
+    """
+    arm_x = 0.15 + gap + 0.045
+    leg_x = 0.07 + gap / 2
+    S = {
+        "waist": ((0, 0, 1.15), (0, 0, 0.88), (0.15, 0.10)),
+        "chest": ((0, 0, 1.15), (0, 0, 1.42), (0.15, 0.10)),
+        "head": ((0, 0, 1.45), (0, 0, 1.62), (0.08, 0.09)),
+        "upper_arm_l": ((arm_x, 0, 1.40), (arm_x, 0, 1.12), (0.045, 0.045)),
+        "upper_arm_r": ((-arm_x, 0, 1.40), (-arm_x, 0, 1.12), (0.045, 0.045)),
+        "forearm_l": ((arm_x, 0, 1.12), (arm_x, 0, 0.86), (0.04, 0.04)),
+        "forearm_r": ((-arm_x, 0, 1.12), (-arm_x, 0, 0.86), (0.04, 0.04)),
+        "thigh_l": ((leg_x, 0, 0.85), (leg_x, 0, 0.48), (0.07, 0.07)),
+        "thigh_r": ((-leg_x, 0, 0.85), (-leg_x, 0, 0.48), (0.07, 0.07)),
+        "lower_leg_l": ((leg_x, 0, 0.48), (leg_x, 0, 0.08), (0.05, 0.05)),
+        "lower_leg_r": ((-leg_x, 0, 0.48), (-leg_x, 0, 0.08), (0.05, 0.05)),
+    }
+    sections = {k: SectionShape(k, s, e, r, X) for k, (s, e, r) in S.items()}
+    pts, lab = [], []
+    for j, name in enumerate(SECTIONS):
+        sh = sections[name]
+        p = sh.surface_points(n_theta=int(2 * np.pi * sh.radii.max() / 0.003), n_h=int(sh.length / 0.003))
+        pts.append(p)
+        lab.append(np.full(len(p), j))
+    P, L = np.concatenate(pts), np.concatenate(lab)
+    inside = np.zeros(len(P), bool)
+    for j, name in enumerate(SECTIONS):
+        inside |= (sections[name].coords(P)[0] < -1e-4) & (L != j)
+    P, L = P[~inside], L[~inside]
+    N = np.zeros_like(P)
+    for j, name in enumerate(SECTIONS):
+        N[L == j] = model_outward(sections[name], P[L == j])
+    ix = np.floor(P[:, 0] / pixel).astype(int)
+    iz = np.floor(P[:, 2] / pixel).astype(int)
+    key = (ix - ix.min()) * 100000 + (iz - iz.min())
+    keep = np.zeros(len(P), bool)
+    vd = np.zeros_like(P)
+    for sign in (1, -1):  # sign 1: the front camera, at -y
+        o = np.lexsort((sign * P[:, 1], key))
+        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
+        first = first[N[first, 1] * -sign > 0.05]
+        keep[first] = True
+        vd[first] = (0, -sign, 0)
+    rng = np.random.default_rng(seed)
+    P = P[keep] + rng.normal(0, 0.0005, (keep.sum(), 3))
+    joints = {"neck": np.array(S["head"][0]), "chest": np.array(S["chest"][0]),
+              "shoulder_l": np.array(S["upper_arm_l"][0]), "shoulder_r": np.array(S["upper_arm_r"][0]),
+              "elbow_l": np.array(S["forearm_l"][0]), "elbow_r": np.array(S["forearm_r"][0]),
+              "hip_l": np.array(S["thigh_l"][0]), "hip_r": np.array(S["thigh_r"][0]),
+              "knee_l": np.array(S["lower_leg_l"][0]), "knee_r": np.array(S["lower_leg_r"][0])}
+    return P, L[keep], N[keep], vd[keep], BodyFit(sections=sections, joints=joints)
+
+
+@pytest.fixture(scope="module")
+def capsules():
+    P, L, N, vd, fit = capsule_body()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        recs = {m: reconstruct(P, m, view_dir=vd, fit=fit) for m in ("simple", "proposed")}
+    return P, L, N, vd, fit, recs
+
+
+def outside_distance(fit, x):
+    """(k,) distance (metres) of ``x`` outside the union of the model sections (<= 0 inside)."""
+    return np.min([s.coords(x)[0] for s in fit.sections.values()], axis=0)
+
+
+def test_no_triangle_joins_an_arm_to_the_torso_2cm_away(capsules):
+    P, L, N, vd, fit, recs = capsules
+    lab = L[recs["proposed"].faces]
+    assert not (np.isin(lab, ARMS).any(axis=1) & np.isin(lab, TORSO).any(axis=1)).any()
+    thighs = [SECTIONS.index("thigh_l"), SECTIONS.index("thigh_r")]
+    assert not ((lab == thighs[0]).any(axis=1) & (lab == thighs[1]).any(axis=1)).any()
+    # whereas the simple baseline bridges the gap
+    lab = L[recs["simple"].faces]
+    assert (np.isin(lab, ARMS).any(axis=1) & np.isin(lab, TORSO).any(axis=1)).sum() > 0
+
+
+def test_capsule_body_clustering_and_surface_against_truth(capsules):
+    P, L, N, vd, fit, recs = capsules
+    rec = recs["proposed"]
+    assert rec.point_sections[np.arange(len(P)), L].mean() > 0.95
+    assert (rec.point_sections.sum(axis=1) <= 2).all()
+    v = rec.vertices[rec.faces]
+    area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
+    air = outside_distance(fit, v.mean(axis=1)) > 0.005
+    assert area[air].sum() < 0.005 * area.sum()
+    simple = recs["simple"]
+    vs = simple.vertices[simple.faces]
+    area_s = 0.5 * np.linalg.norm(np.cross(vs[:, 1] - vs[:, 0], vs[:, 2] - vs[:, 0]), axis=1)
+    assert area_s[outside_distance(fit, vs.mean(axis=1)) > 0.005].sum() > area[air].sum()
+
+
+def test_mesh_is_valid_and_outward(capsules):
+    P, L, N, vd, fit, recs = capsules
+    rec = recs["proposed"]
+    f = rec.faces
+    v = rec.vertices[f]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    area = 0.5 * np.linalg.norm(n, axis=1)
+    assert (area > 0).all()
+    assert len(np.unique(np.sort(f, axis=1), axis=0)) == len(f)
+    e = np.sort(np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]]), axis=1)
+    _, c = np.unique(e, axis=0, return_counts=True)
+    assert (c > 2).mean() < 0.005
+    true_n = N[f].mean(axis=1)
+    assert (np.einsum("ij,ij->i", n, true_n) > 0).mean() > 0.98
+    assert rec.face_section.dtype == np.int8 and len(rec.face_section) == len(f)
+    assert set(rec.times) >= {"cluster", "surface", "total"}
+
+
+def test_write_mesh_round_trip(capsules, tmp_path):
+    import trimesh
+
+    rec = capsules[-1]["proposed"]
+    path = rec.write(tmp_path / "mesh.ply")
+    m = trimesh.load(path, process=False)
+    assert np.array_equal(np.asarray(m.faces), rec.faces)
+    assert np.allclose(m.vertices, rec.vertices, atol=1e-6)
+    raw = path.read_bytes()
+    assert b"property uchar section" in raw[:1000]
+    sec = np.frombuffer(raw[-len(rec.faces) * 14:], dtype=[("n", "u1"), ("i", "<i4", 3), ("s", "u1")])["s"]
+    assert np.array_equal(sec, rec.face_section)
+
+
+# -- bad input ---------------------------------------------------------------------------------------
+def test_bad_points_are_refused_with_a_clear_message(capsules):
+    fit = capsules[4]
+    good = capsules[0]
+    for bad, msg in [(np.zeros((5, 2)), r"\(n, 3\)"), (good[:50], "at least"),
+                     (np.vstack([good, [[np.nan, 0, 0]]]), "NaN"), (good * 1000, "metres")]:
+        with pytest.raises(ReconError, match=msg):
+            reconstruct(bad, fit=fit)
+    with pytest.raises(ReconError, match="unknown method"):
+        reconstruct(good, "poisson", fit=fit)
+    with pytest.raises(ReconError, match="view_dir"):
+        reconstruct(good, fit=fit, view_dir=np.zeros((3, 3)))
+
+
+def test_missing_section_is_skipped_with_a_warning_and_output_not_empty(capsules):
+    P, L, N, vd, fit, _ = capsules
+    keep = L != SECTIONS.index("forearm_l")
+    arm = fit.sections["forearm_l"]
+    moved = BodyFit(sections={**fit.sections, "forearm_l": arm.replace(start=arm.start + 5, end=arm.end + 5)},
+                    joints=fit.joints)
+    with pytest.warns(UserWarning, match="forearm_l"):
+        rec = reconstruct(P[keep], fit=moved, view_dir=vd[keep])
+    assert "forearm_l" in rec.skipped and len(rec.faces) > 1000
+
+
+def test_a_fit_far_from_the_cloud_is_an_error_not_an_empty_mesh(capsules):
+    P, _, _, _, fit, _ = capsules
+    far = BodyFit(sections={k: s.replace(start=s.start + 5, end=s.end + 5) for k, s in fit.sections.items()},
+                  joints={})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        with pytest.raises(ReconError, match="no surface"):
+            reconstruct(P, fit=far)
+
+
+def test_params_reach_the_stages(capsules):
+    P, L, N, vd, fit, recs = capsules
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "simple", ReconParams.from_overrides({"t_d": 0.05}), view_dir=vd, fit=fit)
+    # a tighter T_d leaves fewer points in several sections
+    assert rec.point_sections.sum(axis=1).mean() < recs["simple"].point_sections.sum(axis=1).mean()

@@ -1,0 +1,135 @@
+"""Per-section Delaunay surfaces against analytic cylinders and capsules."""
+
+import numpy as np
+import pytest
+
+from recon.model import SECTIONS, BodyFit, SectionShape
+from recon.params import SurfaceParams
+from recon import surface as S
+
+
+def edge_counts(faces):
+    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
+    u, c = np.unique(e, axis=0, return_counts=True)
+    return u, c
+
+
+def cylinder_points(n=3000, radius=0.05, length=0.4, seed=0):
+    rng = np.random.default_rng(seed)
+    t = rng.uniform(0, 2 * np.pi, n)
+    z = rng.uniform(0, length, n)
+    return np.column_stack([radius * np.cos(t), radius * np.sin(t), z])
+
+
+def test_open_cylinder_gives_a_tube_of_its_points():
+    P = cylinder_points()
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    f = S.section_surface(P, shape)
+    u, c = edge_counts(f)
+    assert len(np.unique(f)) >= 0.99 * len(P)            # (almost) every point is a vertex
+    assert (c <= 2).all()                                # manifold
+    boundary = u[c == 1]
+    zb = P[boundary][:, :, 2].mean(axis=1)
+    near_rim = (zb < 0.03) | (zb > 0.37)
+    assert near_rim.mean() > 0.9                         # open only at the two rims
+    # the tube goes all the way round: edges cross the theta seam, and no edge is long
+    theta = np.arctan2(P[:, 1], P[:, 0])
+    ef = u[c == 2]
+    assert (np.abs(np.diff(theta[ef], axis=1)) > np.pi).any()
+    assert np.linalg.norm(P[ef[:, 0]] - P[ef[:, 1]], axis=1).max() < 0.03
+    # normals, once oriented with the model, point away from the axis
+    fit = BodyFit(sections={"upper_arm_l": shape}, joints={})
+    fo = S.orient_faces(P, f, np.full(len(f), 3, np.int8), fit)
+    p = P[fo]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    radial = p.mean(axis=1) * [1, 1, 0]
+    assert (np.einsum("ij,ij->i", n, radial) > 0).all()
+
+
+def capsule_points(n=4000, seed=0):
+    import trimesh
+
+    mesh = trimesh.creation.capsule(height=0.4, radius=0.06, count=[64, 64])
+    P, _ = trimesh.sample.sample_surface_even(mesh, n, seed=seed)
+    return np.asarray(P)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_closed_capsule_is_nearly_watertight(seed):
+    P = capsule_points(seed=seed)
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    f = S.section_surface(P, shape)
+    u, c = edge_counts(f)
+    assert len(np.unique(f)) == len(P)
+    assert (c != 2).sum() < 0.005 * len(u)               # seams between column and caps close
+    # no overlapping cap/column triangles: total area close to the capsule's
+    true_area = 2 * np.pi * 0.06 * 0.4 + 4 * np.pi * 0.06 ** 2
+    assert abs(S.face_areas(P, f).sum() / true_area - 1) < 0.03
+
+
+def test_peel_removes_only_long_boundary_triangles():
+    from scipy.spatial import Delaunay
+
+    g = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0)), -1).reshape(-1, 2)
+    g = g[~((g[:, 0] >= 4) & (g[:, 0] <= 5) & (g[:, 1] >= 4) & (g[:, 1] <= 5))]  # interior hole
+    g = np.vstack([g, [[4.5, 30.0]]])                                           # far point: slivers
+    tri = Delaunay(g)
+    P = np.column_stack([g, np.zeros(len(g))])
+    long = S.max_edge_length(P, tri.simplices) > 2.0
+    alive = S.peel_boundary(tri.simplices, long)
+    kept = tri.simplices[alive]
+    assert not (kept == len(g) - 1).any()                  # the far point's slivers went
+    hole = long & ~np.isin(tri.simplices, [len(g) - 1]).any(axis=1)
+    assert hole.any() and alive[hole].all()                # the interior hole stays covered
+
+
+def test_max_edge_factor_opens_holes():
+    P = cylinder_points(n=4000)
+    P = P[~((np.abs(P[:, 2] - 0.2) < 0.04) & (P[:, 0] > 0.02))]  # a hole in the data
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    covered = S.section_surface(P, shape)
+    opened = S.section_surface(P, shape, SurfaceParams(max_edge_factor=3.0))
+    assert len(opened) < len(covered)
+    assert S.max_edge_length(P, covered).max() > 0.05      # paper default: the hole is covered
+    assert S.max_edge_length(P, opened).max() < 3.0 * 0.02
+
+
+def test_column_chart_copies_the_seam():
+    theta = np.array([0.1, 3.0, 6.2])
+    uv, src = S.column_chart(theta, np.zeros(3), 1.0, 0.5)
+    assert sorted(src.tolist()) == [0, 0, 1, 2, 2]
+    assert np.isclose(uv[3, 0], 0.1 + 2 * np.pi) and np.isclose(uv[4, 0], 6.2 - 2 * np.pi)
+
+
+def test_merge_drops_inner_and_duplicate_faces():
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0.0], [2, 2, 0]])
+    member = np.zeros((5, 11), bool)
+    member[:, 1] = True
+    member[[1, 2, 3], 2] = True                     # points 1, 2, 3 in two sections
+    per = {1: np.array([[0, 1, 2], [1, 3, 2]]), 2: np.array([[2, 1, 0], [1, 2, 3]])}
+    faces, sec = S.merge_sections(P, per, member)
+    assert faces.tolist() == [[0, 1, 2]] and sec.tolist() == [1]
+
+
+def test_orientation_follows_view_dir():
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 0, 1.0]])
+    fit = BodyFit(sections={"chest": SectionShape("chest", [0, 1, 0], [0, 1, 1], [0.5, 0.5], [1, 0, 0])},
+                  joints={})
+    for vd in ((0, -1, 0), (0, 1, 0)):
+        f = S.orient_faces(P, np.array([[0, 1, 2]]), np.array([1], np.int8), fit, np.array(vd, float))
+        p = P[f[0]]
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        assert n @ np.array(vd) > 0
+
+
+def test_small_section_is_skipped_with_a_warning():
+    P = np.vstack([capsule_points(n=800), [[1.0, 1.0, 1.0], [1.01, 1.0, 1.0], [1.0, 1.01, 1.0]]])
+    fit = BodyFit(sections={
+        "thigh_l": SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0]),
+        "head": SectionShape("head", [1, 1, 0.9], [1, 1, 1.1], [0.05, 0.05], [1, 0, 0])}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:800, SECTIONS.index("thigh_l")] = True
+    member[800:, 0] = True
+    with pytest.warns(UserWarning, match="head"):
+        faces, sec, skipped = S.reconstruct_surfaces(P, member, fit)
+    assert skipped == ["head"] and len(faces) > 1000 and (sec == SECTIONS.index("thigh_l")).all()
