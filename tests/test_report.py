@@ -1,0 +1,243 @@
+"""Reports and the accuracy gate, on a sweep folder filled with known rows and meshes.
+
+The HTML is checked as a user would see it: headless Chromium loads it from disk with no network,
+every image must have loaded (complete, natural width > 0) and the tables must be there.
+"""
+
+import base64
+import io
+import itertools
+import json
+import re
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+import trimesh
+from PIL import Image
+
+from benchmarks import report
+from benchmarks.cli import main as bodyscan
+from benchmarks.store import ResultStore
+from benchmarks.sweep import Job
+
+BODIES = ("standing", "t_pose")
+METHODS = ("proposed", "simple")
+T_D = (0.1, 0.3)
+T_N = (0.3, 0.6)
+MESH = ((5, 5), (10, 10))
+
+
+def spurious_of(method, body, t_d, t_n, mesh_theta):
+    return (0.02 if method == "proposed" else 0.06) * t_d / 0.1 + 0.01 * t_n \
+        + (0.005 if body == "t_pose" else 0.0)
+
+
+def fill(root, *, shift=0.0, drop=(), fail=1, meshes=2):
+    """Rows whose metrics are known functions of the parameters; ``shift`` worsens spurious area.
+    Returns the store."""
+    store = ResultStore(root).open_for_writing()
+    rows = []
+    for body, method, t_d, t_n, (mt, mh) in itertools.product(BODIES, METHODS, T_D, T_N, MESH):
+        if (method, body) in drop:
+            continue
+        recon = {"t_d": t_d, "t_n_factor": t_n, "mesh_theta": mt, "mesh_h": mh}
+        job = Job(f"{body}-{method}-{t_d}-{t_n}-{mt}".replace(".", "p"), f"s-{body}", body, 0,
+                  {"preset": "paper", "k": 1}, method, recon)
+        row = job.row()
+        row.update(status="ok", error=None, traceback=None, wall_s=1.0, worker="h:1",
+                   finished_at=0.0,
+                   spurious_area_fraction=spurious_of(method, body, t_d, t_n, mt) + shift,
+                   bridging_area_fraction=0.004 * t_d / 0.1 + 0.001 * mt / 5,
+                   section_accuracy=0.97 - t_d / 10, joint_error_median_m=0.02,
+                   time_fit_s=1.0, time_cluster_s=0.2 * mt, time_surface_s=0.7,
+                   time_total_s=1.7 + 0.2 * mt, **{"fscore_seen@5mm": 0.9 - t_d / 10})
+        rows.append(row)
+    for row in rows[:fail]:
+        row.update(status="error", error="ReconError: the fit failed", traceback="Traceback...")
+        for k in [k for k in row if k.startswith(("spur", "brid", "fscore", "section", "joint"))]:
+            del row[k]
+    for row in rows:
+        store.put(row)
+    torso = trimesh.creation.capsule(height=1.0, radius=0.15, count=[32, 32])
+    torso.apply_translation([0, 0, 0.9])
+    arm = trimesh.creation.capsule(height=0.5, radius=0.05, count=[16, 16])
+    arm.apply_translation([0.25, 0, 1.2])
+    mesh = trimesh.util.concatenate([torso, arm])
+    section = np.r_[np.full(len(torso.faces), 1), np.full(len(arm.faces), 3)]
+    for row in rows[fail:fail + meshes]:
+        store.put_mesh(row["job_id"], {
+            "vertices": mesh.vertices, "faces": mesh.faces, "face_section": section,
+            "spurious": mesh.triangles_center[:, 2] > 1.5,
+            "bridging": np.zeros(len(mesh.faces), bool),
+            "closeups": {"armpit_l": ([0.18, 0.0, 1.35], 0.15), "crotch": ([0.0, 0.0, 0.5], 0.2)}})
+    store.write_json("meta.json", {"sweep": "fake", "git_commit": "0123456789abcdef", "runs": []})
+    return store
+
+
+@pytest.fixture(scope="module")
+def built(tmp_path_factory):
+    """One sweep folder and its report (pictures included), shared by the tests below."""
+    root = tmp_path_factory.mktemp("report")
+    fill(root / "sweep")
+    index = report.build_report(root / "sweep", root / "rep")
+    return root, index
+
+
+def test_report_files_and_tables(built):
+    root, index = built
+    md = (root / "rep" / "report.md").read_text()
+    assert "# Sweep report: fake" in md
+    assert "## By method" in md and "## By method and posture" in md
+    assert "## Failed jobs (1)" in md and "ReconError: the fit failed" in md
+    # the by-method-and-posture mean is the mean of the known rows (first row failed)
+    jobs = list(itertools.product(T_D, T_N, MESH))
+    values = [spurious_of("proposed", "t_pose", t_d, t_n, m[0]) for t_d, t_n, m in jobs]
+    expected = f"{np.mean(values) * 100:.2f}"
+    line = next(l for l in md.splitlines() if l.startswith("| proposed | t_pose |"))
+    assert line.split("|")[3].strip() == str(len(jobs)) and line.split("|")[4].strip() == expected
+    # every picture the markdown names exists
+    names = re.findall(r"\]\(img/([^)]+)\)", md)
+    assert names and all((root / "rep" / "img" / n).is_file() for n in names)
+    for kind in ("heatmap_proposed", "heatmap_simple", "curve_mesh_size", "postures", "time",
+                 "armpit_l", "crotch"):
+        assert any(kind in n for n in names), kind
+
+
+def test_html_is_self_contained(built):
+    root, index = built
+    page = index.read_text()
+    assert "<script" not in page and "<link" not in page
+    assert not re.search(r'(src|href)="(?!data:)', page)
+    sources = re.findall(r'<img src="data:image/png;base64,([^"]+)"', page)
+    assert len(sources) == page.count("<img")
+    for data in sources:
+        image = Image.open(io.BytesIO(base64.b64decode(data)))
+        image.load()
+        assert image.width > 50 and image.height > 50
+
+
+def _chromium():
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        pytest.fail("headless Chromium is needed to check the report: apt-get install -y chromium")
+    return exe
+
+
+def _chromium_args(exe, profile):
+    return [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync",
+            f"--user-data-dir={profile}"]
+
+
+CHECK_SCRIPT = """
+<script>
+window.addEventListener('load', function () {
+  var imgs = Array.from(document.images);
+  var out = {images: imgs.length,
+             loaded: imgs.filter(function (i) { return i.complete && i.naturalWidth > 0; }).length,
+             tables: document.querySelectorAll('table').length,
+             rows: document.querySelectorAll('tbody tr').length};
+  var pre = document.createElement('pre');
+  pre.id = 'bodyscan-check';
+  pre.textContent = JSON.stringify(out);
+  document.body.appendChild(pre);
+});
+</script>
+"""
+
+
+def test_html_opens_in_headless_chromium(built, tmp_path):
+    root, index = built
+    exe = _chromium()
+    # a copy with a checking script (the report itself has none), opened from disk, no network
+    probe = tmp_path / "probe.html"
+    probe.write_text(index.read_text().replace("</body>", CHECK_SCRIPT + "</body>"))
+    dom = subprocess.run(_chromium_args(exe, tmp_path / "profile") +
+                         ["--virtual-time-budget=10000", "--dump-dom", probe.as_uri()],
+                         capture_output=True, text=True, timeout=120)
+    found = re.search(r'<pre id="bodyscan-check">([^<]+)</pre>', dom.stdout)
+    assert found, dom.stderr[-2000:]
+    check = json.loads(found.group(1).replace("&quot;", '"'))
+    assert check["images"] >= 10 and check["loaded"] == check["images"]
+    assert check["tables"] >= 4 and check["rows"] >= 8
+    # and a screenshot of the page as a user sees it
+    shot = tmp_path / "shot.png"
+    subprocess.run(_chromium_args(exe, tmp_path / "profile") +
+                   ["--window-size=1280,2400", f"--screenshot={shot}", index.as_uri()],
+                   capture_output=True, text=True, timeout=120)
+    pixels = np.asarray(Image.open(shot).convert("L"))
+    assert pixels.shape == (2400, 1280)
+    assert (pixels < 200).mean() > 0.02      # text, tables and figures, not a blank page
+
+
+def test_gate_passes_on_itself_and_lists_regressions(tmp_path):
+    base_store = fill(tmp_path / "base")
+    baseline = report.make_baseline(base_store.read(), sweep="fake")
+    assert report.check_gate(base_store.read(), baseline).passed
+    # worse within the tolerance (abs 0.005, rel 10 %): still passes
+    small = fill(tmp_path / "small", shift=0.004).read()
+    assert report.check_gate(small, baseline).passed
+    # worse beyond it: one regression per method and posture, naming the metric and values
+    worse = fill(tmp_path / "worse", shift=0.05).read()
+    result = report.check_gate(worse, baseline)
+    assert len(result.regressions) == len(BODIES) * len(METHODS)
+    assert all("spurious_area_fraction" in r for r in result.regressions)
+    assert not result.passed and "FAILED" in result.text()
+    # better is never a regression
+    assert report.check_gate(fill(tmp_path / "better", shift=-0.01).read(), baseline).passed
+    # a method/posture that no longer succeeds is a regression
+    gone = fill(tmp_path / "gone", drop=[("simple", "t_pose")]).read()
+    result = report.check_gate(gone, baseline)
+    assert result.regressions == ["simple / t_pose: no successful job (the baseline has 8)"]
+
+
+def test_gate_tolerances_come_from_the_baseline_file(tmp_path):
+    table = fill(tmp_path / "a").read()
+    baseline = report.make_baseline(table)
+    baseline["tolerances"]["spurious_area_fraction"] = {"better": "lower", "abs": 0.1, "rel": 0}
+    assert report.check_gate(fill(tmp_path / "b", shift=0.05).read(), baseline).passed
+
+
+def test_report_command_gate_and_baseline_update(tmp_path, capsys):
+    fill(tmp_path / "base")
+    fill(tmp_path / "worse", shift=0.05)
+    baseline = tmp_path / "reports" / "baseline.json"
+    common = ["--no-pictures", "--baseline", str(baseline)]
+    assert bodyscan(["report", str(tmp_path / "worse"), "--out", str(tmp_path / "r0"),
+                     "--fail-on-regression", *common]) == 2          # no baseline yet
+    assert "--update-baseline" in capsys.readouterr().err
+    assert bodyscan(["report", str(tmp_path / "base"), "--out", str(tmp_path / "r1"),
+                     "--update-baseline", *common]) == 0
+    stored = json.loads(baseline.read_text())
+    assert set(stored["metrics"]) == set(METHODS)
+    assert bodyscan(["report", str(tmp_path / "base"), "--out", str(tmp_path / "r2"),
+                     "--fail-on-regression", *common]) == 0
+    assert "PASSED" in capsys.readouterr().out
+    assert bodyscan(["report", str(tmp_path / "worse"), "--out", str(tmp_path / "r3"),
+                     "--fail-on-regression", *common]) == 1
+    err = capsys.readouterr().err
+    assert "FAILED, 4 regression(s)" in err and "proposed / standing: spurious_area_fraction" in err
+    assert json.loads((tmp_path / "r3" / "gate.json").read_text())["passed"] is False
+    assert "Accuracy gate" in (tmp_path / "r3" / "report.md").read_text()
+    # without --fail-on-regression the gate is reported, and the exit code stays 0
+    assert bodyscan(["report", str(tmp_path / "worse"), "--out", str(tmp_path / "r4"),
+                     *common]) == 0
+
+
+def test_report_user_errors(tmp_path, capsys):
+    assert bodyscan(["report", str(tmp_path / "nothing")]) == 2
+    assert "no such sweep folder" in capsys.readouterr().err
+    (tmp_path / "empty").mkdir()
+    assert bodyscan(["report", str(tmp_path / "empty")]) == 2
+    assert "no sweep results" in capsys.readouterr().err
+    fill(tmp_path / "s")
+    assert bodyscan(["report", str(tmp_path / "s"), "--fail-on-regression"]) == 2
+    assert "need --baseline" in capsys.readouterr().err
+
+
+def test_report_of_only_failures(tmp_path):
+    fill(tmp_path / "s", fail=10_000, meshes=0)
+    index = report.build_report(tmp_path / "s", tmp_path / "rep")
+    assert "Failed jobs" in index.read_text()
