@@ -358,7 +358,7 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
             return
 
 
-def resolve_joints(member, points, r, rows, A, B, radius, tree, widths):
+def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -371,8 +371,9 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths):
     Where the fronts meet: the overlap reaches T_d * width_A into B and T_d * width_B into A, so
     the fronts meet at the true junction when a point goes to A if ``d_A * width_A < d_B *
     width_B`` (``d`` its graph distance from each front); plain round-by-round erosion would move
-    the seam toward the narrower section. The points of the proximal section that have a
-    neighbour of the distal one stay in both: a one-point-wide seam that stitches the surfaces.
+    the seam toward the narrower section. The points of the proximal section that have a point
+    of the distal one within ``seam_width`` (default: the neighbour radius) stay in both: a
+    one-point-wide seam that stitches the surfaces.
     Points that no front reaches go to the section whose surface is nearer (relative to width).
     """
     from scipy.sparse import coo_matrix
@@ -399,7 +400,9 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths):
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
     other = np.where(choice == A, B, A)
-    touches = np.bincount(pos, weights=assigned[nb] == other[pos], minlength=m) > 0
+    seam_width = radius if seam_width is None else seam_width
+    close = (assigned[nb] == other[pos]) & (w <= seam_width)
+    touches = np.bincount(pos, weights=close, minlength=m) > 0
     seam = touches & (choice == _PROXIMAL[A, B])
     keep = ~seam
     member[rows[keep], other[keep]] = False
@@ -447,7 +450,9 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
         resolve_two_sections(out, points, r, rows[~at], A[~at], B[~at], radius, tree,
                              max_rounds=params.max_rounds)
     if at.any():
-        resolve_joints(out, points, r, rows[at], A[at], B[at], radius, tree, widths)
+        resolve_joints(out, points, r, rows[at], A[at], B[at], radius, tree, widths,
+                       seam_width=radius * params.seam_width / params.neighbor_spacing
+                       if params.neighbor_radius == 0 else params.seam_width * radius / 3.0)
     return out
 
 

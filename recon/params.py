@@ -41,6 +41,11 @@ class ClusterParams:
         nearest-neighbour distance of the cloud.
     neighbor_spacing : float
         Automatic neighbour radius in median point spacings (used when ``neighbor_radius`` is 0).
+    seam_width : float
+        Joint rule: points of the proximal section with a point of the distal one nearer than this
+        many median point spacings stay in both sections, as the seam (paper 3.2: "sufficiently
+        few" points in both; the paper gives no number). With a fixed ``neighbor_radius``, the
+        spacing is taken as a third of it.
     joint_reach : float
         A point is "at the joint" of two adjacent sections when it is nearer to the joint than
         this times the larger of the two widths (paper silent: it says "at a joint").
@@ -64,6 +69,7 @@ class ClusterParams:
     min_cell_points: int = 12       # paper silent
     neighbor_radius: float = 0.0    # paper 3.2: "a certain distance"; 0 = automatic
     neighbor_spacing: float = 3.0   # paper silent
+    seam_width: float = 1.5         # paper 3.2, spacings
     joint_reach: float = 0.75       # paper silent
     both_few: float = 0.5           # paper 3.2: "sufficiently few"
     max_rounds: int = 20            # paper silent
@@ -80,6 +86,7 @@ class ClusterParams:
         _check(self.neighbor_radius >= 0, "neighbor_radius", self.neighbor_radius, ">= 0 metres")
         _check(self.neighbor_spacing > 0, "neighbor_spacing", self.neighbor_spacing, "> 0")
         _check(self.joint_reach > 0, "joint_reach", self.joint_reach, "> 0")
+        _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")
         _check(0 <= self.both_few <= 1, "both_few", self.both_few, "a fraction in [0, 1]")
 
 
@@ -106,6 +113,14 @@ class SurfaceParams:
         (paper silent; interior holes are not touched).
     min_section_points : int
         A section with fewer points is skipped with a warning (paper silent).
+    open_joints : bool
+        Project a section's proximal end, where it joins its parent section at a joint, onto the
+        extended column instead of a cap (paper 3.3 does so for open ends): its surface then ends
+        at the seam points it shares with the parent instead of closing across the joint.
+    inner_depth : float
+        Besides the paper's removal of triangles made only of multi-section points, remove the
+        triangles whose centroid lies deeper than this many widths inside an adjacent section's
+        model: they span a joint's opening inside the body where the seam has gaps. 0 disables.
     """
 
     seam_overlap: float = 0.6       # paper 3.3, radians
@@ -113,6 +128,8 @@ class SurfaceParams:
     max_edge_factor: float = 0.0    # paper 4.2: holes are covered (0 = no limit)
     hull_edge_factor: float = 4.0   # paper silent
     min_section_points: int = 10    # paper silent
+    open_joints: bool = True        # paper 3.3 (open ends), applied at joints
+    inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
 
     def __post_init__(self):
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
@@ -120,6 +137,7 @@ class SurfaceParams:
         _check(self.max_edge_factor >= 0, "max_edge_factor", self.max_edge_factor, ">= 0 (0 = no limit)")
         _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
         _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
+        _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 
 def _check(ok, name, value, what):

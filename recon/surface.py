@@ -18,7 +18,7 @@ import warnings
 
 import numpy as np
 
-from .model import SECTIONS, BodyFit, SectionShape
+from .model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
 from .params import SurfaceParams
 
 TWO_PI = 2 * np.pi
@@ -282,6 +282,37 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     return faces
 
 
+def _has_parent(name: str, fit: BodyFit) -> bool:
+    """Whether ``name`` is the distal section of a joint whose proximal section is fitted."""
+    return any(d == name and p in fit.sections for p, d in ADJACENT)
+
+
+def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
+                      depth: float) -> np.ndarray:
+    """(m,) bool: faces whose centroid lies deep inside the model of a section adjacent to theirs.
+
+    Such a face spans the opening where the adjacent section joins (the cap of a neck, a hip),
+    inside the body: deeper than ``depth`` times that section's width below its model surface.
+    """
+    out = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0:
+        return out
+    cen = points[faces].mean(axis=1)
+    adj = adjacency_matrix()
+    for j, name in enumerate(SECTIONS):
+        sel = np.flatnonzero(face_section == j)
+        if len(sel) == 0:
+            continue
+        for k in np.flatnonzero(adj[j]):
+            other = SECTIONS[k]
+            if other not in fit.sections:
+                continue
+            shape = fit.sections[other]
+            r = shape.coords(cen[sel])[0]
+            out[sel[r < -depth * shape.width]] = True
+    return out
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -356,8 +387,14 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                           f"min_section_points={params.min_section_points}); skipped", stacklevel=2)
             skipped.append(name)
             continue
-        f = section_surface(points[idx], fit.sections[name], params)
+        shape = fit.sections[name]
+        if params.open_joints and _has_parent(name, fit):
+            shape = shape.replace(closed=(False, shape.closed[1]))
+        f = section_surface(points[idx], shape, params)
         per[j] = idx[f]
     faces, sec = merge_sections(points, per, member, drop_inner)
+    if drop_inner and params.inner_depth > 0:
+        keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
+        faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
