@@ -153,9 +153,11 @@ def _scan(args) -> int:
     config = build_config(args)
     t0 = time.perf_counter()
     body = load_body(args.body)
+    t1 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         result = scan(body, config)
+    seconds = time.perf_counter() - t1
     for w in caught:
         print(f"bodyscan scan: warning: {w.message}", file=sys.stderr)
     out = write_cloud(result, args.out)
@@ -165,7 +167,7 @@ def _scan(args) -> int:
     if not args.quiet:
         per_head = ", ".join(f"{n} {c:,}" for n, c in zip(result.meta["heads"], result.meta["points_per_head"]))
         print(f"bodyscan scan: {body.name}: {len(result):,} points ({per_head}) from "
-              f"{result.meta['rays']:,} rays in {result.meta['seconds']:.2f} s, "
+              f"{result.meta['rays']:,} rays in {seconds:.2f} s, "
               f"{time.perf_counter() - t0:.2f} s in all -> {out}"
               + (f", preview {args.preview}" if args.preview else ""), file=sys.stderr)
     return 0

@@ -81,9 +81,10 @@ class RayCaster:
         ----------
         origins : (n, 3) float
         directions : (n, 3) or (1, 3) float
-            Unit vectors.
+            Need not be unit vectors: distances count in lengths of ``directions``.
         max_distance : (n,) float, float or None
-            Search up to this distance (None: unbounded).
+            Search up to this distance (None: unbounded); with unnormalised directions, 1.0 tests
+            the segments from ``origins`` to ``origins + directions``.
 
         Returns
         -------

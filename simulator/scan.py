@@ -11,7 +11,6 @@ rigid misalignment of each head's points.
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from dataclasses import dataclass, field
 
@@ -54,7 +53,8 @@ class Scan:
         Ground truth: outward unit normal of that face (never misaligned).
     meta : dict
         ``config`` (dict), ``seed``, ``body``, ``source``, ``version``, ``heads`` (names),
-        ``points_per_head``, ``scanner_center`` (3,), ``rays``, ``seconds``.
+        ``points_per_head``, ``scanner_center`` (3,), ``rays`` (rays cast for this scan; fewer when
+        a `Scanner` reuses camera rays). Nothing time-dependent: same inputs, same file.
     """
 
     points: np.ndarray
@@ -76,11 +76,17 @@ class Scan:
 
 @dataclass
 class _HeadRays:
-    """Camera rays of one head that hit the mesh (cached across laser angles)."""
+    """Camera rays of one head that hit the mesh, and what the laser test needs of them.
+
+    Cached by `Scanner` across laser angles and imperfections.
+    """
 
     points: np.ndarray      # (m, 3) float64 hit points
     directions: np.ndarray  # (m, 3) or (1, 3) float64 unit camera-ray directions
     face: np.ndarray        # (m,) int64
+    normal: np.ndarray      # (m, 3) float32 unit normal of the side the camera sees
+    cos_camera: np.ndarray  # (m,) float32 cosine between that normal and the ray back to the camera
+    starts: np.ndarray      # (m, 3) float32 laser-ray origins: points + RAY_OFFSET along `normal`
     n_rays: int             # camera rays cast
 
 
@@ -153,6 +159,7 @@ class Scanner:
         n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
         length = np.linalg.norm(n, axis=1, keepdims=True)
         self.face_normals = np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+        self.face_normals32 = self.face_normals.astype(np.float32)
         self.face_section = (self.body.face_section() if self.body.has_ground_truth
                              else np.full(len(f), -1, np.int8))
         lo, hi = v.min(axis=0), v.max(axis=0)
@@ -194,59 +201,59 @@ class Scanner:
                       min(nw - 1, math.floor(pu.max() / res + nw / 2 - 0.5)) + 1)
         j = np.arange(min(nh - 1, math.floor(pv.max() / res + nh / 2 - 0.5)),
                       max(0, math.ceil(pv.min() / res + nh / 2 - 0.5)) - 1, -1)   # top row first
-        u = (i + 0.5 - nw / 2) * res
-        w = (j + 0.5 - nh / 2) * res
-        uu, ww = np.meshgrid(u, w)
-        uu, ww = uu.ravel(), ww.ravel()
+        # pixel grid, top row first, built in float32 with one (rows, cols, 3) allocation
+        u = ((i + 0.5 - nw / 2) * res)[:, None] * right
+        w = ((j + 0.5 - nh / 2) * res)[:, None] * up
         if perspective:
-            d = uu[:, None] * right + ww[:, None] * up + dist * axis
-            d /= np.linalg.norm(d, axis=1, keepdims=True)
-            d32 = d.astype(np.float32)
+            d32 = ((w + dist * axis).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
+            d32 /= np.sqrt(np.einsum("ij,ij->i", d32, d32))[:, None]
             o32 = np.broadcast_to(cam.astype(np.float32), d32.shape)
         else:
             start = float((rel @ axis).min()) - 0.01 * max(1.0, float(np.ptp(rel @ axis)))
-            o = o_img + start * axis + uu[:, None] * right + ww[:, None] * up
-            o32 = o.astype(np.float32)
+            o32 = ((o_img + start * axis + w).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
             d32 = axis.astype(np.float32)[None, :]
         face, t = self.caster.first_hit(o32, d32)
-        hit = face >= 0
-        o = o32[hit].astype(np.float64)
-        d = (d32[hit] if perspective else d32).astype(np.float64)
-        points = o + t[hit, None].astype(np.float64) * d
-        rays = _HeadRays(points, d, face[hit], len(face))
+        hit = np.flatnonzero(face >= 0)
+        face = face[hit]
+        d32 = d32[hit] if perspective else d32
+        d = d32.astype(np.float64)
+        points = (o32[0] if perspective else o32[hit]) + t[hit, None].astype(np.float64) * d
+        normal = self.face_normals32[face]
+        cos_camera = -(np.einsum("ij,ij->i", normal, d32) if perspective else normal @ d32[0])
+        flip = cos_camera < 0                   # the camera sees the back of the face (open meshes)
+        normal[flip] *= -1
+        cos_camera = np.abs(cos_camera)
+        starts = (points + self.ray_offset * normal).astype(np.float32)
+        rays = _HeadRays(points, d, face, normal, cos_camera, starts, len(t))
         self._camera_cache[key] = (rays, in_field)
         return rays, in_field
 
     # -- laser -------------------------------------------------------------------------------
-    def _lit(self, rays: _HeadRays, head: Head, config: ScannerConfig, center: np.ndarray):
-        """Mask (m,) of camera hits that the head's laser reaches, and the normals toward the camera."""
+    def _lit(self, rays: _HeadRays, head: Head, config: ScannerConfig, center: np.ndarray) -> np.ndarray:
+        """Indices into ``rays`` of the camera hits that the head's laser reaches."""
         o_img, axis, up, right = head_frame(head, center)
         theta, roll = math.radians(config.laser_angle_deg), math.radians(head.laser_roll_deg)
         side = math.cos(roll) * up + math.sin(roll) * right
-        n = self.face_normals[rays.face]
-        cos_cam = -np.einsum("ij,ij->i", n, np.broadcast_to(rays.directions, n.shape))
-        flip = np.where(cos_cam < 0, -1.0, 1.0)
-        n_seen = n * flip[:, None]                      # normal of the side the camera sees
-        if config.projection == "perspective":
-            source = o_img - config.camera_distance * axis + config.baseline * side
-            to_laser = source - rays.points
-            reach = np.linalg.norm(to_laser, axis=1)
-            to_laser /= reach[:, None]
-            cos_laser = np.einsum("ij,ij->i", n_seen, to_laser)
-        else:
-            to_laser = -math.cos(theta) * axis + math.sin(theta) * side
-            reach = None
-            cos_laser = n_seen @ to_laser
-            to_laser = to_laser[None, :]
         c_min = max(0.0, math.cos(math.radians(config.max_incidence_deg)))
-        candidate = (cos_laser > c_min) & (np.abs(cos_cam) > c_min)
+        if config.projection == "perspective":
+            # unnormalised rays from each point to the source: the source is at distance 1
+            source = o_img - config.camera_distance * axis + config.baseline * side
+            to_laser = source.astype(np.float32) - rays.starts
+            cos_laser = np.einsum("ij,ij->i", rays.normal, to_laser)
+            if c_min > 0:
+                cos_laser /= np.sqrt(np.einsum("ij,ij->i", to_laser, to_laser))
+        else:
+            to_laser = (-math.cos(theta) * axis + math.sin(theta) * side).astype(np.float32)
+            cos_laser = rays.normal @ to_laser
+        candidate = cos_laser > c_min
+        if c_min > 0:
+            candidate &= rays.cos_camera > c_min
         idx = np.flatnonzero(candidate)
-        origins = rays.points[idx] + self.ray_offset * n_seen[idx]
-        dirs = to_laser[idx] if reach is not None else to_laser
-        blocked = self.caster.occluded(origins, dirs, None if reach is None else reach[idx])
-        lit = np.zeros(len(candidate), bool)
-        lit[idx[~blocked]] = True
-        return lit
+        if to_laser.ndim == 1:
+            blocked = self.caster.occluded(rays.starts[idx], to_laser[None, :])
+        else:
+            blocked = self.caster.occluded(rays.starts[idx], to_laser[idx], 1.0)
+        return idx[~blocked]
 
     # -- the scan ----------------------------------------------------------------------------
     def scan(self, config: ScannerConfig | None = None, *, seed: int | None = None) -> Scan:
@@ -273,7 +280,6 @@ class Scanner:
         ScanWarning
             The body extends beyond some head's field (those parts are not measured).
         """
-        t0 = time.perf_counter()
         config = preset("paper") if config is None else config
         if not isinstance(config, ScannerConfig):
             raise ScanError(f"config must be a ScannerConfig, got {type(config).__name__}")
@@ -281,14 +287,13 @@ class Scanner:
             config = config.replace(seed=int(seed))
         rays0 = self.caster.n_rays
         center = self._center(config)
-        parts, camera_rays = [], 0
+        heads, camera_rays = [], 0
         covered = np.zeros(len(self.body.vertices), bool)
-        for h, head in enumerate(config.heads):
+        for head in config.heads:
             rays, in_field = self._camera(head, config, center)
             camera_rays += rays.n_rays
             covered |= in_field
-            lit = self._lit(rays, head, config, center)
-            parts.append(self._measure(h, head, rays, lit, config, center))
+            heads.append((rays, self._lit(rays, head, config, center)))
         where = self.body.source or self.body.name
         if camera_rays == 0 or not covered.any():
             raise ScanError(f"{where}: the body lies outside the field of every head; "
@@ -300,12 +305,17 @@ class Scanner:
                           f"{hi[0]:.2f}, z {lo[2]:.2f}..{hi[2]:.2f} m) lie outside every head's field and are "
                           "not measured: enlarge field_width/field_height or use another head layout",
                           ScanWarning, stacklevel=2)
-        counts = [len(p[0]) for p in parts]
-        if sum(counts) == 0:
+        counts = [len(idx) for _, idx in heads]
+        n = sum(counts)
+        if n == 0:
             raise ScanError(f"{where}: no surface point is both seen by a camera and lit by its laser; "
                             "check the heads and the laser angle")
-        cat = [np.concatenate(a) for a in zip(*parts)]
-        meta = {
+        result = Scan(np.empty((n, 3)), np.empty(n, np.int16), np.empty((n, 3), np.float32),
+                      np.empty(n, np.int64), np.empty(n, np.int8), np.empty((n, 3), np.float32))
+        ends = np.cumsum(counts)
+        for h, ((rays, idx), end) in enumerate(zip(heads, ends)):
+            self._measure(h, rays, idx, config, center, result, slice(end - len(idx), end))
+        result.meta = {
             "format": 1,
             "version": _version(),
             "body": self.body.name,
@@ -316,36 +326,38 @@ class Scanner:
             "points_per_head": counts,
             "scanner_center": [float(c) for c in center],
             "rays": int(self.caster.n_rays - rays0),
-            "seconds": round(time.perf_counter() - t0, 4),
         }
-        return Scan(*cat, meta=meta)
+        return result
 
-    def _measure(self, h, head, rays, lit, config, center):
-        """Arrays of head ``h``'s measured points, with noise, outliers and misalignment."""
-        idx = np.flatnonzero(lit)
+    def _measure(self, h, rays, idx, config, center, out, rows):
+        """Write head ``h``'s measured points (camera hits ``idx``) into ``out[rows]``, with imperfections."""
         m = len(idx)
-        ray_dir = rays.directions[idx] if len(rays.directions) > 1 else np.broadcast_to(rays.directions, (m, 3))
-        points = rays.points[idx]
-        face = rays.face[idx]
-        view = -ray_dir
+        points = out.points[rows]
+        np.take(rays.points, idx, axis=0, out=points)
+        face = out.gt_face[rows]
+        np.take(rays.face, idx, out=face)
+        np.take(self.face_section, face, out=out.gt_section[rows])
+        np.take(self.face_normals32, face, axis=0, out=out.gt_normal[rows])
+        out.head[rows] = h
+        ray_dir = rays.directions[idx] if len(rays.directions) > 1 else rays.directions
+        view = out.view_dir[rows]
+        view[:] = -ray_dir
         rng = np.random.default_rng([config.seed, h])
         if config.noise_sigma > 0:
-            points = points + rng.normal(0.0, config.noise_sigma, m)[:, None] * ray_dir
+            points += rng.normal(0.0, config.noise_sigma, m)[:, None] * ray_dir
         n_out = int(round(config.outlier_fraction * m))
         if n_out and config.outlier_spread > 0:
             which = np.sort(rng.choice(m, n_out, replace=False))
-            points = points.copy()
-            points[which] += rng.uniform(-config.outlier_spread, config.outlier_spread, n_out)[:, None] * ray_dir[which]
+            shift = rng.uniform(-config.outlier_spread, config.outlier_spread, n_out)[:, None]
+            points[which] += shift * (ray_dir[which] if len(ray_dir) > 1 else ray_dir)
         if config.misalign_deg > 0 or config.misalign_mm > 0:
             axis = rng.normal(size=3)
             axis /= np.linalg.norm(axis)
             shift = rng.normal(size=3)
             shift *= config.misalign_mm / 1000.0 / np.linalg.norm(shift)
             rot = _rotation(axis, math.radians(config.misalign_deg))
-            points = (points - center) @ rot.T + center + shift
-            view = view @ rot.T
-        return (points, np.full(m, h, np.int16), np.ascontiguousarray(view, dtype=np.float32), face,
-                self.face_section[face], self.face_normals[face].astype(np.float32))
+            points[:] = (points - center) @ rot.T + center + shift
+            view[:] = view @ rot.T.astype(np.float32)
 
 
 def scan(body, config: ScannerConfig | None = None, *, seed: int | None = None) -> Scan:

@@ -377,6 +377,10 @@ def test_cli_writes_cloud_and_preview(body, tmp_path, capsys):
     assert cfg.laser_angle_deg == 30.0 and cfg.resolution == 0.02 and cfg.noise_sigma == 0.001
     assert cfg.misalign_mm == 1 and s.meta["seed"] == 4 and s.meta["body"] == "b"
     assert png.stat().st_size > 10_000
+    again = tmp_path / "again.ply"
+    _run(["scan", str(src), "--out", str(again), "--k", "2", "--resolution", "0.02", "--noise", "0.001",
+          "--seed", "4", "--param", "misalign_mm=1", "-q"])
+    assert again.read_bytes() == out.read_bytes()
 
 
 def test_cli_errors_are_one_line_with_exit_code_2(sphere, tmp_path, capsys):
