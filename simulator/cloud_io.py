@@ -9,8 +9,10 @@ Vertex properties, in this order::
     char   gt_section       ground truth: body section (-1: none)
     float  gt_nx, gt_ny, gt_nz   ground truth: outward unit normal of that triangle
 
-Metadata goes in header lines ``comment bodyscan <key> <json>``. trimesh, Open3D, MeshLab and
-CloudCompare read the file as a point cloud; `read_scan` reads everything back.
+Metadata goes in header lines ``comment bodyscan <key> <json>``. MeshLab rejects header lines over
+about 500 characters, so a long dict or list value is split over dotted keys (``config.projection``,
+``config.heads.0``, ...), which `read_scan` joins again. trimesh, Open3D, MeshLab and CloudCompare
+read the file as a point cloud; `read_scan` reads everything back.
 """
 
 from __future__ import annotations
@@ -44,6 +46,39 @@ PLY_TYPES = {
 
 COMMENT = "comment bodyscan "
 
+#: Longest JSON text on one header line before a dict or list value is split over dotted keys.
+MAX_JSON = 400
+
+
+def _header_items(key: str, value) -> list[tuple[str, str]]:
+    """(key, json) pairs for ``value``, splitting long dicts and lists over ``key.sub`` keys."""
+    text = json.dumps(value, separators=(",", ":"), allow_nan=False)
+    if len(text) <= MAX_JSON or not isinstance(value, (dict, list)) or not value:
+        return [(key, text)]
+    items = value.items() if isinstance(value, dict) else enumerate(value)
+    return [pair for sub, v in items for pair in _header_items(f"{key}.{sub}", v)]
+
+
+def _join_dotted(meta: dict) -> dict:
+    """Inverse of `_header_items`: nest ``a.b.0`` keys back into dicts and lists."""
+    out: dict = {}
+    for key, value in meta.items():
+        *path, last = key.split(".")
+        node = out
+        for part in path:
+            node = node.setdefault(part, {})
+        node[last] = value
+
+    def lists(node):
+        if not isinstance(node, dict):
+            return node
+        node = {k: lists(v) for k, v in node.items()}
+        if node and all(k.isdigit() for k in node) and sorted(map(int, node)) == list(range(len(node))):
+            return [node[str(i)] for i in range(len(node))]
+        return node
+
+    return {k: lists(v) for k, v in out.items()}
+
 
 def write_cloud(scan: Scan, path: str | os.PathLike) -> Path:
     """Write ``scan`` as a binary little-endian PLY; return the path.
@@ -68,10 +103,9 @@ def write_cloud(scan: Scan, path: str | os.PathLike) -> Path:
     data["gt_section"] = scan.gt_section
     lines = ["ply", "format binary_little_endian 1.0"]
     for key, value in scan.meta.items():
-        text = json.dumps(value, separators=(",", ":"), allow_nan=False)
-        if " " in key or "\n" in text:
+        if not key or any(c in key for c in " .\n"):
             raise ScanError(f"{path}: metadata key {key!r} cannot be written to a PLY header")
-        lines.append(f"{COMMENT}{key} {text}")
+        lines += [f"{COMMENT}{k} {text}" for k, text in _header_items(key, value)]
     lines.append(f"element vertex {n}")
     lines += [f"property {ply} {name}" for name, _, ply in FIELDS]
     lines.append("end_header")
@@ -130,7 +164,7 @@ def read_header(fh, path) -> tuple[int, list[tuple[str, str]], dict]:
             props.append((words[2], PLY_TYPES[words[1]]))
     if n is None:
         raise ScanError(f"{path}: PLY file has no vertex element")
-    return n, props, meta
+    return n, props, _join_dotted(meta)
 
 
 def read_scan(path: str | os.PathLike) -> Scan:

@@ -24,6 +24,9 @@ from .raycast import RayCaster
 #: diagonal (40 micrometres for a person): well above float32 hit error, far below any feature.
 RAY_OFFSET = 2e-5
 
+#: Camera-ray results a `Scanner` keeps (one per head geometry and resolution), oldest dropped first.
+CAMERA_CACHE_SIZE = 16
+
 #: Coordinates larger than this (metres) mean the mesh is not in metres.
 MAX_EXTENT_M = 3.0
 
@@ -225,6 +228,8 @@ class Scanner:
         cos_camera = np.abs(cos_camera)
         starts = (points + self.ray_offset * normal).astype(np.float32)
         rays = _HeadRays(points, d, face, normal, cos_camera, starts, len(t))
+        if len(self._camera_cache) >= CAMERA_CACHE_SIZE:
+            self._camera_cache.pop(next(iter(self._camera_cache)))
         self._camera_cache[key] = (rays, in_field)
         return rays, in_field
 

@@ -132,6 +132,20 @@ def test_laser_shadow_below_a_ledge_grows_with_tan_k(k):
     assert 1.0 - seen.points[wall0 & (seen.points[:, 2] < 1.0), 2].max() <= res + 1e-6
 
 
+def test_laser_beside_the_camera_shades_the_side_of_the_ledge():
+    """laser_roll_deg = 90: the laser sits to the camera's right (+x), so the shadow falls to -x."""
+    res, depth, k = 0.004, 0.1, 2
+    mesh = _scene(_plane(0.0), _box([-0.2, -depth, 1.0], [0.2, 0.05, 1.2]))
+    s = scan(mesh, preset("paper", k=k, resolution=res, heads=(Head("front", laser_roll_deg=90.0),)))
+    wall = np.abs(s.points[:, 1]) < 1e-6
+    x, z = s.points[wall, 0], s.points[wall, 2]
+    band = (z > 1.0 + res) & (z < 1.2 - res)
+    assert 1.0 - z[(np.abs(x) < 0.2 - res) & (z < 1.0)].max() <= res + 1e-6   # nothing shaded below
+    left = x[band & (x < -0.2)]
+    assert -0.2 - left.max() == pytest.approx(depth * _tan(k), abs=res)          # shadow on the left
+    assert x[band & (x > 0.2)].min() - 0.2 <= res + 1e-6                        # lit on the right
+
+
 def test_perspective_points_see_their_pinhole(sphere):
     cfg = preset("scanner", noise_sigma=0.0, resolution=0.01)
     s = scan(sphere, cfg)
@@ -333,8 +347,13 @@ def test_ply_roundtrip_and_third_party_readers(body, tmp_path):
     props = [ln.split()[-1] for ln in header.splitlines() if ln.startswith("property")]
     assert props == ["x", "y", "z", "head", "vx", "vy", "vz", "gt_face", "gt_section", "gt_nx", "gt_ny", "gt_nz"]
     assert np.array_equal(np.asarray(trimesh.load(path).vertices), s.points)
+    assert max(len(line) for line in header.splitlines()) < 500          # MeshLab's header limit
     o3d = pytest.importorskip("open3d")
     assert np.array_equal(np.asarray(o3d.io.read_point_cloud(str(path)).points), s.points)
+    pymeshlab = pytest.importorskip("pymeshlab")
+    ms = pymeshlab.MeshSet()
+    ms.load_new_mesh(str(path))
+    assert np.array_equal(ms.current_mesh().vertex_matrix(), s.points)
 
 
 # --- bad input ---------------------------------------------------------------------------------
