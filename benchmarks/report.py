@@ -461,12 +461,10 @@ def _figures(doc, ok, pd):
             means = np.nan_to_num(means)
             ax.barh(methods, means, left=left, label=stage[5:-2])
             left += means
-        if "time_total_s" in ok.columns:
-            totals = [ok.loc[ok["method"] == m, "time_total_s"].mean() for m in methods]
-            ax.plot(totals, methods, "k|", markersize=18, label="total")
         ax.set_xlabel("seconds per job (mean)")
-        ax.legend(fontsize=8, ncol=len(stages) + 1, loc="lower left", bbox_to_anchor=(0, 1))
-        doc.image("time.png", _png(fig), "Mean time of each stage per job")
+        ax.legend(fontsize=8, ncol=len(stages), loc="lower left", bbox_to_anchor=(0, 1))
+        doc.image("time.png", _png(fig), "Mean time of each stage per job (stages shared by the "
+                  "jobs of one scan, scan and fit, are counted in full for each job)")
 
 
 def _sorted_values(index) -> list:

@@ -52,6 +52,8 @@ import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
+
 from . import BenchError
 from .store import ResultStore
 
@@ -595,43 +597,154 @@ def _provenance() -> dict:
 
 
 # -- the default runner: simulator + recon + benchmarks.bench ------------------------------------
+#
+# Work shared by the jobs of one scan is done once: the scan stage also estimates the posture with
+# the default fit parameters (the swept T_d, T_n factor and mesh size act after the fit), and each
+# worker process keeps the last ground truths it prepared (`benchmarks.metrics.GroundTruth`, which
+# cannot be pickled). A job whose fit parameters differ from the defaults fits again (once per
+# worker and setting).
+
+#: Close-ups drawn in reports: name -> (joints whose mean is the centre, offset (3,) m, radius m).
+CLOSEUPS = {
+    "armpit_l": (("shoulder_l",), (-0.03, 0.0, -0.10), 0.13),   # below and inside the shoulder
+    "armpit_r": (("shoulder_r",), (0.03, 0.0, -0.10), 0.13),
+    "crotch": (("hip_l", "hip_r"), (0.0, 0.0, -0.10), 0.15),
+}
+
+
+@dataclass
+class Scanned:
+    """What the scan stage hands to the jobs of one scan."""
+
+    body: object                          # poses.Body
+    scan: object                          # simulator.Scan
+    fits: dict = field(default_factory=dict)   # repr(FitParams) -> BodyFit or the ReconError
+    seconds: dict = field(default_factory=dict)  # time_scan_s, and time_fit_s per fit key
+
 
 def check(sweep: Sweep) -> None:
     """Check bodies, scanner settings, methods and reconstruction parameters before running."""
-    import simulator
     from poses.body import load_body
     from recon import ReconParams
 
     for body in sweep.bodies:
-        load_body(sweep.body_paths.get(body, body))
+        load_body(sweep.body_paths.get(body, body)).require_ground_truth("scoring")
     for setting in sweep.scanner:
         _scanner_config(setting)
     for setting in sweep.recon:
         ReconParams.from_overrides(setting)
     known = _known_methods()
-    bad = [m for m in sweep.methods if known and m not in known]
+    bad = [m for m in sweep.methods if m not in known]
     if bad:
         raise ValueError(f"unknown method(s) {', '.join(bad)} (known: {', '.join(known)})")
-    del simulator
 
 
-def scan(body: str, scanner: dict, seed: int):
-    """Default runner: load ``body`` and simulate its scan; returns ``(body, scan)``."""
+def scan(body: str, scanner: dict, seed: int) -> Scanned:
+    """Default runner: load ``body``, simulate its scan, estimate its posture (default fit)."""
     import simulator
     from poses.body import load_body
+    from recon import ReconError, ReconParams
 
     loaded = load_body(body)
-    return loaded, simulator.scan(loaded, _scanner_config(scanner), seed=seed)
+    started = time.perf_counter()
+    simulated = simulator.scan(loaded, _scanner_config(scanner), seed=seed)
+    scanned = Scanned(loaded, simulated, seconds={"scan": time.perf_counter() - started})
+    params = ReconParams()
+    try:
+        _fit_for(scanned, params)
+    except ReconError:      # stored; reported by every job that needs this fit
+        pass
+    return scanned
 
 
-def evaluate(scanned, method: str, recon: dict) -> dict:
-    """Default runner: reconstruct and score one scan with `benchmarks.bench.evaluate`."""
+def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
+    """Default runner: reconstruct one scan with ``method`` and ``recon`` settings, and score it.
+
+    Returns the metrics of `benchmarks.bench.evaluate` (plus ``_mesh``: the mesh, its section
+    labels, spurious and bridging faces, and the armpit and crotch close-ups, for pictures).
+    """
     from recon import ReconParams
 
-    from .bench import evaluate as bench_evaluate
+    params = ReconParams.from_overrides(recon)
+    fit = _fit_for(scanned, params) if method in _FIT_METHODS else None
+    truth = _truth_for(scanned.body)
+    row = _bench_evaluate(scanned, method, params, fit, truth)
+    # the shared stages, done once per scan, are charged to every job in full
+    row["time_scan_s"] = scanned.seconds.get("scan", math.nan)
+    if fit is not None:
+        row["time_fit_s"] = scanned.seconds.get(repr(params.fit), math.nan)
+    return row
 
-    body, simulated = scanned
-    return bench_evaluate(body, simulated, method, ReconParams.from_overrides(recon))
+
+#: Methods that use the posture fit (the paper's two); peers do not.
+_FIT_METHODS = ("proposed", "simple")
+_TRUTHS: dict = {}
+
+
+def _estimate_fit(simulated, params):
+    from recon.pipeline import check_points, estimate_fit
+
+    return estimate_fit(check_points(simulated.points), params, simulated.view_dir)
+
+
+def _fit_for(scanned: Scanned, params):
+    key = repr(params.fit)
+    if key not in scanned.fits:   # a swept fit parameter: fit here, keep it for this worker
+        from recon import ReconError
+        started = time.perf_counter()
+        try:
+            scanned.fits[key] = _estimate_fit(scanned.scan, params)
+        except ReconError as exc:
+            scanned.fits[key] = exc
+        scanned.seconds[key] = time.perf_counter() - started
+    fit = scanned.fits[key]
+    if isinstance(fit, Exception):
+        raise fit
+    return fit
+
+
+def _truth_for(body):
+    """This worker's prepared ground truth of ``body`` (the last two are kept)."""
+    from .metrics import GroundTruth
+
+    key = (body.source or body.name, body.name, len(body.vertices))
+    if key not in _TRUTHS:
+        while len(_TRUTHS) >= 2:
+            _TRUTHS.pop(next(iter(_TRUTHS)))
+        _TRUTHS[key] = GroundTruth.from_body(body)
+    return _TRUTHS[key]
+
+
+def _closeups(body) -> dict:
+    joints = body.joint_dict() if body.has_ground_truth else {}
+    out = {}
+    for name, (names, offset, radius) in CLOSEUPS.items():
+        if all(n in joints for n in names):
+            center = np.mean([joints[n] for n in names], axis=0) + np.asarray(offset)
+            out[name] = (center, radius)
+    return out
+
+
+def _bench_evaluate(scanned: Scanned, method, params, fit, truth) -> dict:
+    """Reconstruct and score (interim: recon + metrics, until benchmarks.bench lands)."""
+    from recon import reconstruct
+
+    from .metrics import score_mesh
+
+    simulated = scanned.scan
+    rec = reconstruct(simulated.points, method, params, view_dir=simulated.view_dir, fit=fit)
+    row = score_mesh(rec.vertices, rec.faces, truth, scan_points=simulated.points,
+                     scan_gt_face=simulated.gt_face, scan_gt_section=simulated.gt_section,
+                     point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
+                     joints=getattr(rec.fit, "joints", None), keep_masks=True)
+    row.update({f"time_{k}_s": float(v) for k, v in rec.times.items()})
+    used = np.unique(rec.faces)
+    remap = np.full(len(rec.vertices), -1)
+    remap[used] = np.arange(len(used))
+    row["_mesh"] = {"vertices": rec.vertices[used], "faces": remap[rec.faces],
+                    "face_section": rec.face_section, "spurious": row.pop("_spurious"),
+                    "bridging": row.pop("_bridging"), "closeups": _closeups(scanned.body)}
+    return row
 
 
 def _scanner_config(setting: dict):

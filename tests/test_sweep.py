@@ -14,6 +14,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -291,3 +292,40 @@ def test_sweep_on_a_dask_cluster(tmp_path, dask_cluster):
     again = subprocess.run(_bodyscan("sweep", str(path), "--out", str(out), "--scheduler",
                                      address), capture_output=True, text=True, timeout=300)
     assert "24 already stored" in again.stderr and len(scans_done(tmp_path)) == 4 * 2
+
+
+# -- the default runner: simulator, recon, metrics ----------------------------------------------
+
+def test_default_runner_on_the_standing_body(tmp_path):
+    from poses.library import list_bodies
+
+    if "standing" not in list_bodies():
+        pytest.fail("the shipped library has no 'standing' body")
+    path = tmp_path / "real.yaml"
+    path.write_text(yaml.safe_dump({
+        "name": "real", "bodies": ["standing"], "methods": ["proposed"],
+        "scanner": {"preset": "paper", "resolution": 0.02},
+        "recon": {"t_d": [0.2, 0.3]}, "keep_meshes": 1}))
+    sweep = load_sweep(path)
+    summary = run_sweep(sweep, tmp_path / "out", workers=1, progress=None)
+    store = ResultStore(tmp_path / "out")
+    table = store.read()
+    assert summary.ok == 2, table.get("traceback")
+    for metric in ("spurious_area_fraction", "bridging_area_fraction", "fscore_seen@5mm",
+                   "section_accuracy", "joint_error_median_m", "time_fit_s", "time_scan_s"):
+        assert table[metric].notna().all(), metric
+    assert table["spurious_area_fraction"].between(0, 1).all()
+    # the posture was estimated once, in the scan stage, and charged to both jobs
+    assert table["time_fit_s"].nunique() == 1
+    # the worse of the two jobs keeps its mesh, with close-ups near the shoulders and hips
+    (kept,) = store.mesh_ids()
+    worst = table.loc[(table.spurious_area_fraction + table.bridging_area_fraction).idxmax()]
+    assert kept == worst.job_id
+    mesh = store.get_mesh(kept)
+    assert mesh["faces"].max() < len(mesh["vertices"]) and len(mesh["spurious"]) == len(mesh["faces"])
+    from poses.body import load_body
+    joints = load_body("standing").joint_dict()
+    center, radius = mesh["closeups"]["armpit_l"]
+    assert np.linalg.norm(center - joints["shoulder_l"]) < radius
+    center, radius = mesh["closeups"]["crotch"]
+    assert np.linalg.norm(center - (joints["hip_l"] + joints["hip_r"]) / 2) < radius
