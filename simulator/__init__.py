@@ -1,4 +1,12 @@
-"""A slit-laser range-finder simulator: scans a posed body mesh with real self-occlusion."""
+"""A slit-laser range-finder simulator: scans a posed body mesh with real self-occlusion.
+
+>>> import poses, simulator
+>>> body = poses.load_body("standing")
+>>> cloud = simulator.scan(body, simulator.preset("paper", k=2))      # parallel, 10 mm, front + rear
+>>> simulator.write_cloud(cloud, "standing_k2.ply")                    # doctest: +SKIP
+>>> scanner = simulator.Scanner(body)                                  # one Embree scene, many scans
+>>> clouds = [scanner.scan(simulator.preset("scanner", k=k)) for k in (1, 2, 3)]
+"""
 
 
 class ScanError(ValueError):

@@ -301,8 +301,11 @@ class Scanner:
             heads.append((rays, self._lit(rays, head, config, center)))
         where = self.body.source or self.body.name
         if camera_rays == 0 or not covered.any():
-            raise ScanError(f"{where}: the body lies outside the field of every head; "
-                            "put it at the origin, standing on z = 0 (or set center_on_body)")
+            lo, hi = self.bounds
+            z0 = min(h.height - h.field_height / 2 for h in config.heads)
+            z1 = max(h.height + h.field_height / 2 for h in config.heads)
+            raise ScanError(f"{where}: the body (z {lo[2]:.3g}..{hi[2]:.3g}) lies outside the field of every "
+                            f"head (z {z0:.3g}..{z1:.3g} m): give it in metres, +z up, standing on z = 0")
         if not covered.all():
             out = self.body.vertices[~covered]
             lo, hi = out.min(axis=0), out.max(axis=0)
