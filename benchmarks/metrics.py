@@ -610,6 +610,8 @@ def section_accuracy(point_sections: np.ndarray, gt_section: np.ndarray) -> dict
     ``section_accuracy_any`` counts a point right whenever the truth is among its labels;
     ``multi_label_fraction`` and ``unlabelled_fraction`` say how often each case happens.
 
+    Points whose true section is unknown (``gt_section < 0``) are left out.
+
     Parameters
     ----------
     point_sections : (n, 11) bool
@@ -619,6 +621,11 @@ def section_accuracy(point_sections: np.ndarray, gt_section: np.ndarray) -> dict
     gt = np.asarray(gt_section, dtype=np.int64)
     if ps.ndim != 2 or ps.shape[0] != len(gt) or ps.shape[1] != len(SECTIONS):
         raise BenchError(f"point_sections must be ({len(gt)}, {len(SECTIONS)}) bool, got {ps.shape}")
+    known = gt >= 0
+    ps, gt = ps[known], gt[known]
+    if len(gt) == 0:
+        return {"section_accuracy": float("nan"), "section_accuracy_any": float("nan"),
+                "multi_label_fraction": float("nan"), "unlabelled_fraction": float("nan")}
     m = ps.sum(axis=1)
     hit = ps[np.arange(len(gt)), gt]
     score = np.where(hit, 1.0 / np.maximum(m, 1), 0.0)
@@ -664,7 +671,8 @@ def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt
     seen : (m,) bool, optional
         Precomputed ``truth.seen(scan_points)``.
     keep_masks : bool
-        Also return the per-face masks ``_spurious`` and ``_bridging`` (for pictures).
+        Also return the per-face masks ``_spurious`` and ``_bridging`` and the per-face true
+        section ``_true_section`` (for pictures).
     """
     params = truth.params
     vertices = np.asarray(vertices, dtype=np.float64)
@@ -683,11 +691,14 @@ def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt
                                point_index=point_index)
         row.update(spurious(vertices, faces, tf, truth, params))
         row.update(bridging(vertices, faces, tf, truth, params))
+        sec = truth.face_section[tf]   # majority of the corners' true sections (for pictures)
+        row["_true_section"] = np.where(sec[:, 1] == sec[:, 2], sec[:, 1], sec[:, 0])
     else:
         row.update(spurious_count=0, spurious_area_fraction=float("nan"),
                    spurious_area_fraction_unoriented=float("nan"), bridging_area_fraction=float("nan"),
                    bridging_area_cm2=0.0, bridging_pairs="{}",
-                   _spurious=np.zeros(0, bool), _bridging=np.zeros(0, bool))
+                   _spurious=np.zeros(0, bool), _bridging=np.zeros(0, bool),
+                   _true_section=np.zeros(0, np.int64))
     if seen is None and scan_points is not None:
         seen = truth.seen(scan_points)
     row.update(accuracy_completeness(vertices, faces, truth, params, seen))
