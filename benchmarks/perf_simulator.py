@@ -10,6 +10,7 @@ Targets (issue 3): well under a second, at most 1.5x raw Embree, under 1 GB.
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import time
@@ -108,7 +109,10 @@ def main(argv=None) -> int:
     print(f"reference, one head's camera rays: trimesh intersects_id {tm_rate / 1e6:.2f} Mrays/s, "
           f"simulator RayCaster.first_hit {wrapper_rate / 1e6:.2f} Mrays/s")
     print(f"peak RSS: {peak:.0f} MB (before scanning: {rss0:.0f} MB)")
-    checks = [("under 1 s", wall < 1.0), ("overhead <= 1.5x", ratio <= 1.5), ("memory < 1 GB", peak < 1024)]
+    load = os.getloadavg()[0]
+    print(f"machine: {os.cpu_count()} CPUs, load average {load:.1f} (wall times stretch when it exceeds the CPUs)")
+    checks = [("under 1 s wall", wall < 1.0), ("under 1 s CPU", cpu < 1.0), ("overhead <= 1.5x", ratio <= 1.5),
+              ("memory < 1 GB", peak < 1024)]
     print("targets: " + ", ".join(f"{name} {'PASS' if ok else 'FAIL'}" for name, ok in checks))
     return 0
 

@@ -224,7 +224,11 @@ def test_every_body_point_is_seen_and_lit_by_independent_trimesh_rays(body, name
     blocked = np.zeros(len(sub), bool)
     blocked[ray] = np.linalg.norm(loc - start[ray], axis=1) < reach[ray]
     assert blocked.mean() < 0.002, f"{blocked.sum()} points in the laser's shadow"
-    assert (s.gt_section >= 0).all() and (s.gt_section[s.gt_face == s.gt_face[0]] == s.gt_section[0]).all()
+    # ground truth: each point lies on its face, whose normal and section are the body's
+    normal = mesh.face_normals[s.gt_face]
+    assert np.abs(s.gt_normal - normal).max() < 1e-5
+    assert np.abs(np.einsum("ij,ij->i", s.points - mesh.triangles[s.gt_face, 0], normal)).max() < 1e-5
+    assert np.array_equal(s.gt_section, body.face_section()[s.gt_face])
 
 
 def test_body_scan_finds_every_seen_and_lit_pixel(body):
