@@ -1,5 +1,239 @@
-"""Placeholder: subcommands added by a later issue."""
+"""`bodyscan bench` (the paper's experiment, scored) and `bodyscan score` (score any mesh)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _csv(text: str) -> tuple:
+    return tuple(x.strip() for x in text.split(",") if x.strip())
+
+
+def _pairs(items, option) -> dict:
+    from . import BenchError
+
+    out = {}
+    for item in items or ():
+        name, sep, value = item.partition("=")
+        if not sep or not name.strip():
+            raise BenchError(f"{option} {item!r}: expected name=value")
+        out[name.strip()] = value.strip()
+    return out
 
 
 def register(sub) -> None:
-    """Add this module's subcommands to ``sub`` (none yet)."""
+    """Add ``bench`` and ``score`` to the ``bodyscan`` subparsers ``sub``."""
+    p = sub.add_parser(
+        "bench", help="the benchmark: scan every posture, reconstruct with every method, score",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="The paper's experiment made numeric: every posture of the library, scanned with "
+                    "the 'paper' preset at k = 1, 2, 3, reconstructed with proposed, simple and every "
+                    "installed peer (poisson, poisson-trimmed, bpa, alpha, spsr), scored. Prints a "
+                    "table (method x metric: mean and worst posture) and writes results.parquet, "
+                    "report.md, run.json and pictures to reports/<run-id>/.")
+    p.add_argument("--bodies", type=_csv, default=(), metavar="A,B",
+                   help="postures: library names or body files (default: every shipped posture)")
+    p.add_argument("--presets", type=_csv, default=("paper",), metavar="P,Q",
+                   help="scanner presets: paper (parallel, 10 mm) and/or scanner (perspective, 2 mm, "
+                        "1 mm noise)")
+    p.add_argument("--k", type=_csv, default=("1", "2", "3"), metavar="1,2,3", dest="ks",
+                   help="laser angle indices: the laser is k * 15 degrees from the camera axis")
+    p.add_argument("--methods", type=_csv, default=(), metavar="M,N",
+                   help="methods: proposed, simple, poisson, poisson-trimmed, bpa, alpha, spsr "
+                        "(default: proposed, simple and every installed peer)")
+    p.add_argument("--no-peers", action="store_true",
+                   help="only proposed and simple (when --methods is not given)")
+    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                   help="reconstruction parameter override by its name (e.g. t_d=0.3); repeatable")
+    p.add_argument("--scanner", action="append", default=[], metavar="NAME=VALUE",
+                   help="scanner setting override for every preset (e.g. noise_sigma=0.001, metres); "
+                        "repeatable")
+    p.add_argument("--metric", action="append", default=[], metavar="NAME=VALUE",
+                   help="metric setting: spurious_angle_deg (30), bridging_distance_m (0.005), "
+                        "n_samples (50000), seen_radius_m (0.015), seed (0), oriented (true), "
+                        "backend (auto/open3d/numpy); repeatable")
+    p.add_argument("--seed", type=int, default=0, help="scan seed (noise, outliers, misalignment)")
+    p.add_argument("--out", default=None, metavar="DIR", help="report folder (default: reports/<run-id>)")
+    p.add_argument("--no-pictures", action="store_true", help="skip the pictures")
+    p.set_defaults(func=bench_command)
+
+    s = sub.add_parser(
+        "score", help="score any mesh against a ground-truth body and its scan",
+        description="Score a mesh from any tool: spurious and bridging area, precision/recall/F at "
+                    "5 and 10 mm, Chamfer-L1, normal consistency (and section accuracy and posture "
+                    "error when known). Mesh vertices that coincide with cloud points use the "
+                    "point's true triangle; others the nearest point of the true surface.")
+    s.add_argument("mesh", metavar="MESH", help="the mesh to score (PLY, OBJ, STL, OFF, GLB), metres")
+    s.add_argument("--body", required=True, metavar="BODY",
+                   help="the true body: a library name or a body .npz (with ground truth)")
+    s.add_argument("--cloud", metavar="CLOUD.ply",
+                   help="the scan the mesh was made from (bodyscan scan output): gives recall of the "
+                        "seen surface, and exact true triangles for vertices that are scan points")
+    s.add_argument("--fit", metavar="FIT.json", help="a posture (bodyscan fit output): joint error")
+    s.add_argument("--metric", action="append", default=[], metavar="NAME=VALUE",
+                   help="metric setting (see bodyscan bench --help); repeatable")
+    s.add_argument("--out", metavar="metrics.json", help="write the metrics here (default: print them)")
+    s.set_defaults(func=score_command)
+
+
+def _metric_params(items):
+    import dataclasses
+
+    from . import BenchError
+    from .metrics import MetricParams
+
+    overrides = _pairs(items, "--metric")
+    fields = {f.name: f for f in dataclasses.fields(MetricParams)}
+    values = {}
+    for name, text in overrides.items():
+        if name not in fields:
+            raise BenchError(f"--metric {name}: unknown (known: {', '.join(fields)})")
+        default = getattr(MetricParams(), name)
+        try:
+            if isinstance(default, bool):
+                if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
+                    raise ValueError
+                values[name] = text.lower() in ("true", "1", "yes")
+            elif isinstance(default, tuple):
+                values[name] = tuple(float(x) for x in text.split(","))
+            elif isinstance(default, (int, float)) and not isinstance(default, bool):
+                values[name] = type(default)(float(text)) if isinstance(default, float) else int(text)
+            else:
+                values[name] = text
+        except ValueError:
+            raise BenchError(f"--metric {name}={text!r}: expected a {type(default).__name__}") from None
+    return MetricParams(**values)
+
+
+def bench_command(args) -> int:
+    from .bench import RECON_METHODS, BenchConfig, run_bench
+
+    methods = args.methods or (RECON_METHODS if args.no_peers else ())
+    config = BenchConfig(bodies=args.bodies, presets=args.presets, ks=tuple(_k(k) for k in args.ks),
+                         methods=methods, recon=_pairs(args.param, "--param"),
+                         scanner=_scanner(args.scanner), seed=args.seed,
+                         metric=_metric_params(args.metric), pictures=not args.no_pictures)
+    result = run_bench(config, args.out)
+    print(result.summary)
+    print(f"\nreport: {result.out / 'report.md'}")
+    failed = int((result.table["status"] != "ok").sum())
+    return 1 if failed == len(result.table) else 0
+
+
+def _k(text):
+    from . import BenchError
+
+    try:
+        return float(text)
+    except ValueError:
+        raise BenchError(f"--k {text!r}: expected numbers like 1,2,3") from None
+
+
+def _scanner(items) -> dict:
+    from . import BenchError
+
+    out = {}
+    for name, text in _pairs(items, "--scanner").items():
+        if name in ("heads", "projection"):
+            out[name] = text
+            continue
+        try:
+            out[name] = int(text) if name == "seed" else (
+                text.lower() in ("true", "1", "yes") if name == "center_on_body" else float(text))
+        except ValueError:
+            raise BenchError(f"--scanner {name}={text!r}: expected a number") from None
+    return out
+
+
+def _load_mesh(path):
+    import numpy as np
+    import trimesh
+
+    from . import BenchError
+
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such mesh file")
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:
+        raise BenchError(f"{path}: cannot read it as a mesh ({type(exc).__name__}: {exc})") from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))), dtype=np.int64)
+    if len(faces) == 0:
+        raise BenchError(f"{path}: holds no triangles (a point cloud? give the reconstructed mesh)")
+    return np.asarray(mesh.vertices, dtype=np.float64), faces, mesh
+
+
+def score_command(args) -> int:
+    import numpy as np
+
+    from poses.body import load_body
+
+    from . import BenchError
+    from .bench import score
+
+    vertices, faces, mesh = _load_mesh(args.mesh)
+    body = load_body(args.body)
+    body.require_ground_truth("scoring")
+    scan = None
+    if args.cloud:
+        import simulator
+
+        scan = simulator.read_scan(args.cloud)
+    joints = None
+    if args.fit:
+        try:
+            joints = {k: np.asarray(v, float) for k, v in json.loads(Path(args.fit).read_text())["joints"].items()}
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise BenchError(f"{args.fit}: not a fit file with joints ({exc})") from None
+    scale = float(np.ptp(vertices, axis=0).max())
+    if scale > 10 * body.height:
+        raise BenchError(f"{args.mesh}: the mesh is {scale:.4g} units across; coordinates must be "
+                         "metres, like the body")
+    point_sections, point_index = None, None
+    if scan is not None:
+        from scipy.spatial import cKDTree
+
+        d, i = cKDTree(scan.points).query(vertices, distance_upper_bound=1e-6)
+        point_index = np.where(np.isfinite(d), i, -1)
+        point_sections = _point_sections_from_faces(mesh, faces, point_index, len(scan.points))
+    row = score(vertices, faces, body, scan, point_index=point_index, point_sections=point_sections,
+                joints=joints, metric_params=_metric_params(args.metric))
+    row = {"mesh": str(args.mesh), "body": body.name, "cloud": args.cloud, **row}
+    if scan is not None:
+        row["matched_vertex_fraction"] = float(np.mean(point_index >= 0))
+    text = json.dumps(row, indent=1, default=float)
+    if args.out:
+        out = Path(args.out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        out.write_text(text + "\n")
+        print(f"bodyscan score: wrote {out}", file=sys.stderr)
+    else:
+        print(text)
+    return 0
+
+
+def _point_sections_from_faces(mesh, faces, point_index, n_points):
+    """(n, 11) bool section labels of the cloud points from a mesh's per-face ``section`` property
+    (a `recon` mesh): each point gets the sections of the faces around it; None when the mesh
+    has no such property or no vertex is a cloud point."""
+    import numpy as np
+
+    from .metrics import SECTIONS
+
+    face_attr = getattr(mesh, "metadata", {}).get("_ply_raw", {}).get("face", {}).get("data")
+    section = None
+    if face_attr is not None and "section" in (face_attr.dtype.names or ()):
+        section = np.asarray(face_attr["section"]).astype(np.int64).reshape(-1)
+    if section is None or len(section) != len(faces) or not (point_index >= 0).any():
+        return None
+    out = np.zeros((n_points, len(SECTIONS)), bool)
+    ok = (section >= 0) & (section < len(SECTIONS))
+    for c in range(3):
+        pi = point_index[faces[ok, c]]
+        keep = pi >= 0
+        out[pi[keep], section[ok][keep]] = True
+    return out

@@ -1,0 +1,682 @@
+"""The benchmark: scan every posture, reconstruct with every method, score, and write a report.
+
+`run_bench` is ``bodyscan bench``: the paper's experiment (section 4.2) made numeric. Each shipped
+posture is scanned with the ``paper`` preset at k = 1, 2, 3, reconstructed with ``proposed``,
+``simple`` and every installed peer (`benchmarks.peers`), and scored (`benchmarks.metrics`).
+A run writes, under ``reports/<run-id>/``:
+
+- ``results.parquet``: one row per posture x scan x method, every metric and every parameter
+  (``scanner.*``, ``recon.*``, ``metric.*``, ``peer.*``), ``status`` and ``error``;
+- ``report.md``: the tables (per method: mean over postures and the worst posture);
+- ``img/``: per method, the reconstruction of the standing posture with spurious or bridging
+  triangles in red (the paper's Fig. 13), with armpit and crotch close-ups;
+- ``run.json``: the run's settings, seeds, package versions, git commit and host.
+
+Two functions do one case each, for sweeps and other tools: `evaluate` (reconstruct and score)
+and `score` (score a given mesh).
+
+Measurements: ``time_<stage>_s`` are wall-clock seconds of each stage as the method reports them
+(``time_total_s`` is the whole reconstruction, the posture fit included); ``peak_memory_mb`` is
+the peak resident memory of the process above its level when the reconstruction started, sampled
+every 5 ms by a thread reading ``/proc/self/statm`` (so it sees C++ allocations of the peers as
+well as numpy's; memory freed earlier and reused counts as free, so it is a lower bound). Where
+``/proc`` is missing it is the growth of ``ru_maxrss``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import os
+import platform
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from . import BenchError
+from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
+from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
+
+#: Methods of `recon` (scored with their section labels and joints).
+RECON_METHODS = ("proposed", "simple")
+#: Every method the benchmark knows, in table order.
+METHODS = RECON_METHODS + tuple(PEERS)
+
+#: Columns of the printed table: name -> (label, scale, digits, higher is better).
+TABLE = {
+    "spurious_area_fraction": ("spur%", 100, 2, False),
+    "bridging_area_cm2": ("bridge cm2", 1, 1, False),
+    "precision@5mm": ("P@5", 1, 3, True),
+    "recall_seen@5mm": ("Rseen@5", 1, 3, True),
+    "recall_full@5mm": ("Rfull@5", 1, 3, True),
+    "fscore_seen@5mm": ("Fseen@5", 1, 3, True),
+    "chamfer_l1_mm": ("CD-L1 mm", 1, 2, False),
+    "normal_consistency": ("NC", 1, 3, True),
+    "section_accuracy": ("sect.acc", 1, 3, True),
+    "joint_error_median_m": ("joint mm", 1000, 1, False),
+    "time_total_s": ("time s", 1, 2, False),
+}
+
+#: Scan seed of the default run.
+DEFAULT_SEED = 0
+
+
+# --------------------------------------------------------------------------------------------------
+# one case
+
+
+_TRUTH_CACHE: dict = {}
+
+
+def ground_truth(body, metric_params: MetricParams | None = None) -> GroundTruth:
+    """The prepared ground truth of ``body`` (cached: the last few bodies are kept)."""
+    metric_params = metric_params or MetricParams()
+    h = hashlib.sha1(np.ascontiguousarray(body.vertices).tobytes())
+    h.update(np.ascontiguousarray(body.faces).tobytes())
+    key = (h.hexdigest(), metric_params)
+    if key not in _TRUTH_CACHE:
+        if len(_TRUTH_CACHE) >= 4:
+            _TRUTH_CACHE.pop(next(iter(_TRUTH_CACHE)))
+        _TRUTH_CACHE[key] = GroundTruth.from_body(body, metric_params)
+    return _TRUTH_CACHE[key]
+
+
+def closeups(body) -> dict:
+    """Close-up frames ``{name: (center (3,), radius)}`` around the armpits and the crotch,
+    placed from the body's true joints (metres)."""
+    j = body.joint_dict()
+    out = {}
+    for side in ("l", "r"):
+        c = 0.5 * j[f"shoulder_{side}"] + 0.25 * j[f"elbow_{side}"] + 0.25 * j["chest"]
+        out[f"armpit_{side}"] = (c, 0.15)
+    hips = 0.5 * (j["hip_l"] + j["hip_r"])
+    knees = 0.5 * (j["knee_l"] + j["knee_r"])
+    out["crotch"] = (0.7 * hips + 0.3 * knees, 0.15)
+    return out
+
+
+def score(mesh_vertices, mesh_faces, body, scan=None, *, point_index=None, point_sections=None,
+          joints=None, metric_params: MetricParams | None = None, keep_masks: bool = False) -> dict:
+    """Score any mesh against a ground-truth body and (optionally) its scan.
+
+    Parameters
+    ----------
+    mesh_vertices : (V, 3) float, metres
+    mesh_faces : (F, 3) int
+    body : poses.Body
+        With ground truth.
+    scan : simulator.Scan, optional
+        Its points give ``recall_seen`` and, for mesh vertices that are scan points, the exact
+        true triangle (``gt_face``); without it every vertex uses the nearest true surface.
+    point_index : (V,) int, optional
+        Scan point of each vertex, -1 for none (default: matched by position, within 1 micrometre).
+    point_sections : (n, 11) bool, optional
+        Section labels of the scan points (section accuracy).
+    joints : dict of str to (3,), optional
+        Estimated joints (posture error).
+    metric_params : MetricParams, optional
+    keep_masks : bool
+        Also return per-face ``_spurious``, ``_bridging`` and ``_true_section``.
+
+    Returns
+    -------
+    dict
+        One flat row: see `benchmarks.metrics.score_mesh`.
+    """
+    truth = ground_truth(body, metric_params)
+    kw = {}
+    if scan is not None:   # unknown ground truth (-1, a plain cloud) falls back to the surface
+        kw = dict(scan_points=np.asarray(scan.points), scan_gt_face=np.asarray(scan.gt_face),
+                  scan_gt_section=np.asarray(scan.gt_section))
+    return score_mesh(mesh_vertices, mesh_faces, truth, point_index=point_index,
+                      point_sections=point_sections, joints=joints, keep_masks=keep_masks, **kw)
+
+
+class PeakMemory:
+    """Context manager measuring the peak resident memory above the level at entry (MiB)."""
+
+    def __init__(self, interval: float = 0.005):
+        self.interval = interval
+        self.peak_mb = float("nan")
+
+    @staticmethod
+    def _rss() -> int | None:
+        try:
+            with open("/proc/self/statm") as fh:
+                return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE")
+        except (OSError, ValueError, IndexError):
+            return None
+
+    def _watch(self):
+        while not self._stop.wait(self.interval):
+            self._max = max(self._max, self._rss() or 0)
+
+    def __enter__(self):
+        self._base = self._rss()
+        if self._base is None:
+            import resource
+            self._ru = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+            return self
+        self._max = self._base
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._watch, daemon=True)
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc):
+        if self._base is None:
+            import resource
+            grown = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - self._ru
+            self.peak_mb = grown / 1024.0  # kilobytes on Linux
+            return False
+        self._stop.set()
+        self._thread.join()
+        self._max = max(self._max, self._rss() or 0)
+        self.peak_mb = (self._max - self._base) / 2 ** 20
+        return False
+
+
+def _recon_params(params):
+    from recon import ReconParams
+
+    if params is None or isinstance(params, dict):
+        return ReconParams.from_overrides(params or {})
+    if isinstance(params, ReconParams):
+        return params
+    raise BenchError(f"params must be a dict of recon parameters or a ReconParams, got {type(params).__name__}")
+
+
+def scan_columns(scan) -> dict:
+    """The scan's settings as flat ``scanner.*`` columns (heads as JSON text)."""
+    cfg = dict(scan.meta.get("config", {})) if hasattr(scan, "meta") else {}
+    out = {}
+    for k, v in cfg.items():
+        out[f"scanner.{k}"] = json.dumps(v) if isinstance(v, (list, dict, tuple)) else v
+    if "laser_angle_deg" in cfg:
+        out["k"] = float(cfg["laser_angle_deg"]) / 15.0
+    out["n_points"] = int(len(scan.points))
+    return out
+
+
+def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParams | None = None,
+             peer_params: PeerParams | None = None, fit=None, fit_seconds: float = 0.0,
+             keep_mesh: bool = True) -> dict:
+    """Reconstruct one scan with one method and score it: one flat results row.
+
+    Parameters
+    ----------
+    body : poses.Body
+        The scanned body, with ground truth.
+    scan : simulator.Scan
+    method : str
+        One of `METHODS`.
+    params : dict or recon.ReconParams, optional
+        Flat reconstruction parameter overrides (``{"t_d": 0.3}``), for ``proposed``/``simple``.
+    metric_params, peer_params : optional
+    fit : recon.model.BodyFit, optional
+        A posture already estimated on this scan with these parameters (shared between methods);
+        its ``fit_seconds`` are added to the method's time.
+    keep_mesh : bool
+        Add a ``_mesh`` entry (vertices, faces, face_section, spurious, bridging, closeups) for
+        pictures; callers storing the row drop it.
+
+    Returns
+    -------
+    dict
+        Metrics (`benchmarks.metrics.score_mesh`), ``time_<stage>_s``, ``peak_memory_mb``,
+        ``method``, ``body``, ``status`` (``ok``) and the parameters (``recon.*``/``peer.*``,
+        ``scanner.*``, ``metric.*``).
+
+    Raises
+    ------
+    BenchError
+        Unknown method or missing package; errors of the method itself propagate.
+    """
+    if method not in METHODS:
+        raise BenchError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+    metric_params = metric_params or MetricParams()
+    row: dict = {"body": body.name, "method": method}
+    row.update(scan_columns(scan))
+    if method in RECON_METHODS:
+        import recon
+
+        rp = _recon_params(params)
+        with PeakMemory() as mem:
+            rec = recon.reconstruct(scan.points, method, rp, view_dir=scan.view_dir, fit=fit)
+        times = dict(rec.times)
+        if fit is not None:
+            times["fit"] = float(fit_seconds)
+            times["total"] = times.get("total", 0.0) + float(fit_seconds)
+        vertices, faces = rec.vertices, rec.faces
+        extra = dict(point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
+                     joints=rec.fit.joints)
+        face_section = np.asarray(rec.face_section)
+        row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
+                    for k, v in rp.to_dict().items()})
+    else:
+        if params:
+            raise BenchError(f"method {method!r} takes no recon parameters (got {', '.join(dict(params))})")
+        peer_params = peer_params or PeerParams()
+        with PeakMemory() as mem:
+            vertices, faces, times = reconstruct_peer(method, scan.points, scan.view_dir, peer_params)
+        extra, face_section = {}, None
+        row.update({k.replace("peer_", "peer."): v for k, v in peer_params.as_columns().items()})
+    row.update({f"time_{k}_s": float(v) for k, v in times.items()})
+    row["peak_memory_mb"] = float(mem.peak_mb)
+    t0 = time.perf_counter()
+    metrics = score(vertices, faces, body, scan, metric_params=metric_params, keep_masks=True, **extra)
+    row["time_score_s"] = time.perf_counter() - t0
+    masks = {k: metrics.pop(k) for k in [k for k in metrics if k.startswith("_")]}
+    row.update(metrics)
+    row.update({k.replace("metric_", "metric."): v for k, v in metric_params.as_columns().items()})
+    row["status"], row["error"] = "ok", None
+    if keep_mesh:
+        row["_mesh"] = {
+            "vertices": np.asarray(vertices, dtype=np.float32), "faces": np.asarray(faces),
+            "face_section": face_section if face_section is not None else masks.get("_true_section"),
+            "spurious": masks.get("_spurious"), "bridging": masks.get("_bridging"),
+            "closeups": closeups(body),
+        }
+    return row
+
+
+# --------------------------------------------------------------------------------------------------
+# the run
+
+
+@dataclass(frozen=True)
+class BenchConfig:
+    """What `run_bench` runs.
+
+    Attributes
+    ----------
+    bodies : tuple of str
+        Library names or body files; empty: every shipped posture.
+    presets : tuple of str
+        Scanner presets (`simulator.PRESETS`).
+    ks : tuple of float
+        Laser angle indices (angle = k * 15 degrees), paper 4.1.
+    methods : tuple of str
+        Empty: ``proposed``, ``simple`` and every installed peer.
+    recon : dict
+        Flat reconstruction parameter overrides (`recon.ReconParams.from_overrides`).
+    scanner : dict
+        Scanner field overrides applied to every preset (e.g. ``noise_sigma``).
+    seed : int
+        Scan seed (noise, outliers, misalignment).
+    metric : MetricParams
+    pictures : bool
+    """
+
+    bodies: tuple = ()
+    presets: tuple = ("paper",)
+    ks: tuple = (1, 2, 3)
+    methods: tuple = ()
+    recon: dict = field(default_factory=dict)
+    scanner: dict = field(default_factory=dict)
+    seed: int = DEFAULT_SEED
+    metric: MetricParams = field(default_factory=MetricParams)
+    pictures: bool = True
+
+    def resolved(self) -> "BenchConfig":
+        """Defaults filled in and every name checked (raises `BenchError`)."""
+        from poses.body import load_body
+        from poses.library import list_bodies
+
+        bodies = tuple(self.bodies) or tuple(list_bodies())
+        if not bodies:
+            raise BenchError("no postures: the pose library is empty and --bodies names none")
+        for b in bodies:
+            load_body(b).require_ground_truth("the benchmark")
+        methods = tuple(self.methods) or RECON_METHODS + tuple(available_peers())
+        unknown = [m for m in methods if m not in METHODS]
+        if unknown:
+            raise BenchError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
+        missing = [m for m in methods if m in PEERS and m not in available_peers()]
+        if missing:
+            raise BenchError(f"method(s) {', '.join(missing)} need the peers extra: "
+                             "pip install 'bodyscan[peers]' (Open3D also needs apt-get install libusb-1.0-0)")
+        if any(m in RECON_METHODS for m in methods):
+            _recon_params(dict(self.recon))
+        elif self.recon:
+            raise BenchError("recon parameters were given but no recon method (proposed, simple) runs")
+        if not self.ks or any(not 0 < float(k) < 6 for k in self.ks):
+            raise BenchError(f"k values must be in (0, 6) (laser angle k * 15 degrees), got {self.ks}")
+        import simulator
+
+        for p in self.presets:
+            simulator.preset(p, **self.scanner)
+        return dataclasses.replace(self, bodies=bodies, methods=methods,
+                                   ks=tuple(float(k) for k in self.ks))
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["metric"] = dataclasses.asdict(self.metric)
+        return d
+
+
+@dataclass
+class BenchResult:
+    """A finished run: its table and where it was written."""
+
+    table: object            # pandas.DataFrame
+    out: Path
+    summary: str
+
+
+def run_id() -> str:
+    """``bench-YYYYmmdd-HHMMSS`` (UTC)."""
+    return time.strftime("bench-%Y%m%d-%H%M%S", time.gmtime())
+
+
+def _log(msg: str, stream) -> None:
+    if stream is not None:
+        print(msg, file=stream, flush=True)
+
+
+def _estimate_fit(scan, params):
+    """The posture of ``scan`` with ``params``, and the seconds it took."""
+    from recon.pipeline import estimate_fit
+
+    t0 = time.perf_counter()
+    fit = estimate_fit(np.asarray(scan.points, dtype=np.float64), params,
+                       np.asarray(scan.view_dir, dtype=np.float64))
+    return fit, time.perf_counter() - t0
+
+
+def run_bench(config: BenchConfig | None = None, out=None, *, progress=sys.stderr) -> BenchResult:
+    """Run the benchmark and write its report folder.
+
+    Parameters
+    ----------
+    config : BenchConfig, optional
+        Default: the paper's experiment on the shipped library.
+    out : str or Path, optional
+        Report folder; default ``reports/<run-id>`` under the current directory.
+    progress : file or None
+        Where progress lines go (stderr).
+
+    Returns
+    -------
+    BenchResult
+    """
+    import pandas as pd
+    import simulator
+    from poses.body import load_body
+
+    started = time.time()
+    config = (config or BenchConfig()).resolved()
+    out = Path(out) if out is not None else Path("reports") / run_id()
+    out.mkdir(parents=True, exist_ok=True)
+    cases = [(b, p, k) for b in config.bodies for p in config.presets for k in config.ks]
+    n_jobs = len(cases) * len(config.methods)
+    _log(f"bodyscan bench: {len(config.bodies)} posture(s) x {len(config.presets)} preset(s) x "
+         f"{len(config.ks)} k x {len(config.methods)} method(s) = {n_jobs} reconstructions -> {out}",
+         progress)
+    rows, meshes = [], {}
+    done = 0
+    picture_body = "standing" if "standing" in config.bodies else config.bodies[0]
+    picture_case = (picture_body, config.presets[0], config.ks[0])
+    uses_recon = [m for m in config.methods if m in RECON_METHODS]
+    for body_name, preset, k in cases:
+        body = load_body(body_name)
+        ground_truth(body, config.metric)
+        cfg = simulator.preset(preset, **{**config.scanner, "k": k})
+        t0 = time.perf_counter()
+        sc = simulator.scan(body, cfg, seed=config.seed)
+        scan_s = time.perf_counter() - t0
+        fit, fit_s, fit_error = None, 0.0, None
+        if uses_recon:
+            try:
+                fit, fit_s = _estimate_fit(sc, _recon_params(dict(config.recon)))
+            except Exception as exc:  # the recon methods of this scan fail with it
+                fit_error = f"{type(exc).__name__}: {exc}"
+        for method in config.methods:
+            base = {"body": body.name, "method": method, "preset": preset, "k": float(k),
+                    "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
+            t0 = time.perf_counter()
+            try:
+                if method in RECON_METHODS and fit_error:
+                    raise BenchError(f"posture estimation failed: {fit_error}")
+                row = evaluate(body, sc, method, dict(config.recon) if method in RECON_METHODS else None,
+                               metric_params=config.metric, fit=fit, fit_seconds=fit_s,
+                               keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
+                row = {**base, **row}
+            except Exception as exc:
+                if isinstance(exc, (KeyboardInterrupt, MemoryError)):
+                    raise
+                row = {**base, "status": "error", "error": f"{type(exc).__name__}: {exc}"}
+            mesh = row.pop("_mesh", None)
+            if mesh is not None:
+                meshes[method] = mesh
+            rows.append(row)
+            done += 1
+            status = row["status"] if row["status"] != "ok" else (
+                f"spurious {100 * row['spurious_area_fraction']:.2f} %, bridging "
+                f"{row['bridging_area_cm2']:.0f} cm2, F_seen@5mm {row['fscore_seen@5mm']:.3f}")
+            _log(f"[{done}/{n_jobs}] {body.name} {preset} k={k:g} {method}: {status} "
+                 f"({time.perf_counter() - t0:.1f} s)", progress)
+    table = pd.DataFrame(rows)
+    table.to_parquet(out / "results.parquet", index=False)
+    summary = summary_table(table)
+    (out / "run.json").write_text(json.dumps(run_metadata(config, started), indent=2, default=str))
+    pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
+    (out / "report.md").write_text(report_markdown(table, config, summary, pictures, picture_case))
+    _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
+         f"report.md, run.json" + (f" and {len(pictures)} pictures" if pictures else ""), progress)
+    return BenchResult(table=table, out=out, summary=summary)
+
+
+# --------------------------------------------------------------------------------------------------
+# tables, pictures, metadata
+
+
+def _per_posture(table, metric):
+    ok = table[table["status"] == "ok"]
+    return ok.groupby(["method", "body"])[metric].mean()
+
+
+def method_summary(table):
+    """Per method and metric: mean over postures (each the mean over its scans), the worst
+    posture's value and its name. Returns a DataFrame indexed by method."""
+    import pandas as pd
+
+    methods = [m for m in METHODS if m in set(table["method"])]
+    records = []
+    ok = table[table["status"] == "ok"]
+    for m in methods:
+        rec = {"method": m, "cases": int((table["method"] == m).sum()), "failed": int(
+            ((table["method"] == m) & (table["status"] != "ok")).sum())}
+        for metric, (_, _, _, higher) in TABLE.items():
+            if metric not in ok.columns:
+                continue
+            per = ok[ok["method"] == m].groupby("body")[metric].mean().dropna()
+            if per.empty:
+                rec[metric], rec[f"{metric}:worst"], rec[f"{metric}:worst_body"] = np.nan, np.nan, ""
+                continue
+            worst = per.idxmin() if higher else per.idxmax()
+            rec[metric], rec[f"{metric}:worst"], rec[f"{metric}:worst_body"] = per.mean(), per[worst], worst
+        records.append(rec)
+    return pd.DataFrame(records).set_index("method") if records else pd.DataFrame()
+
+
+def _fmt(metric, value) -> str:
+    if value is None or not np.isfinite(value):
+        return "-"
+    _, scale, digits, _ = TABLE[metric]
+    return f"{value * scale:.{digits}f}"
+
+
+def summary_table(table) -> str:
+    """The compact text table: method x metric, ``mean`` and below it ``worst (posture)``."""
+    s = method_summary(table)
+    if s.empty:
+        return "(no results)"
+    metrics = [m for m in TABLE if m in s.columns]
+    head = ["method"] + [TABLE[m][0] for m in metrics]
+    lines = []
+    for method, rec in s.iterrows():
+        fail = f" ({rec['failed']} failed)" if rec["failed"] else ""
+        lines.append([method + fail] + [_fmt(m, rec[m]) for m in metrics])
+        lines.append(["  worst"] + [_fmt(m, rec[f"{m}:worst"]) for m in metrics])
+    width = [max(len(str(r[i])) for r in [head] + lines) for i in range(len(head))]
+    fmt = lambda r: "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)  # noqa: E731
+                              for i, (c, w) in enumerate(zip(r, width)))
+    out = [fmt(head), "  ".join("-" * w for w in width)] + [fmt(r) for r in lines]
+    n_bodies = table["body"].nunique()
+    out.append(f"mean over {n_bodies} posture(s) (each averaged over its scans); 'worst': the worst "
+               "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
+               "Rseen: recall of the surface the scanner saw, CD-L1: Chamfer-L1 (mean of both "
+               "directions), NC: normal consistency, joint: median joint error.")
+    return "\n".join(out)
+
+
+def report_markdown(table, config: BenchConfig, summary: str, pictures: list, picture_case) -> str:
+    """The ``report.md`` text."""
+    s = method_summary(table)
+    metrics = [m for m in TABLE if m in s.columns]
+    md = ["# bodyscan bench", "",
+          f"{table['body'].nunique()} posture(s) ({', '.join(sorted(table['body'].unique()))}), "
+          f"presets {', '.join(config.presets)}, k = {', '.join(f'{k:g}' for k in config.ks)}, "
+          f"methods {', '.join(config.methods)}; scan seed {config.seed}. "
+          f"Every number is in `results.parquet`; settings in `run.json`.", "",
+          "## By method", "",
+          "Mean over postures (each posture averaged over its scans); below, the worst posture.", "",
+          "| method | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
+          "|---|" + "---:|" * len(metrics)]
+    for method, rec in s.iterrows():
+        md.append(f"| {method} | " + " | ".join(_fmt(m, rec[m]) for m in metrics) + " |")
+        md.append("| worst | " + " | ".join(
+            f"{_fmt(m, rec[f'{m}:worst'])} ({rec[f'{m}:worst_body']})" if rec[f"{m}:worst_body"] else "-"
+            for m in metrics) + " |")
+    ok = table[table["status"] == "ok"]
+    if len(ok):
+        md += ["", "## By method, posture and k", "",
+               "| method | posture | preset | k | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
+               "|---|---|---|---:|" + "---:|" * len(metrics)]
+        for _, r in ok.sort_values(["method", "body", "preset", "k"],
+                                   key=lambda c: c.map({m: i for i, m in enumerate(METHODS)})
+                                   if c.name == "method" else c).iterrows():
+            md.append(f"| {r['method']} | {r['body']} | {r['preset']} | {r['k']:g} | "
+                      + " | ".join(_fmt(m, r.get(m, np.nan)) for m in metrics) + " |")
+        if "bridging_pairs" in ok.columns:
+            md += ["", "## Where the surface in the air is (cm², summed over scans)", ""]
+            for method, g in ok.groupby("method"):
+                tot: dict = {}
+                for text in g["bridging_pairs"].dropna():
+                    for key, v in json.loads(text).items():
+                        tot[key] = tot.get(key, 0.0) + v
+                top = sorted(tot.items(), key=lambda kv: -kv[1])[:6]
+                md.append(f"- **{method}**: " + (", ".join(f"{k} {v:.0f}" for k, v in top) or "none"))
+    failed = table[table["status"] != "ok"]
+    if len(failed):
+        md += ["", f"## Failed ({len(failed)})", ""]
+        md += [f"- {r['method']} / {r['body']} / {r['preset']} k={r['k']:g}: {r['error']}"
+               for _, r in failed.iterrows()]
+    if pictures:
+        body, preset, k = picture_case
+        md += ["", f"## Reconstructions of {body} ({preset}, k = {k:g})", "",
+               "Sections in colour (peers: the true section of the nearest surface); spurious "
+               "(normal more than the threshold from the true one) or bridging triangles in red, "
+               "as in the paper's Fig. 13. Close-ups: a slab around each armpit and the crotch.", ""]
+        for method, files in pictures:
+            md.append(f"### {method}")
+            md += [f"![{method} {Path(f).stem}]({f})" for f in files]
+            md.append("")
+    md += ["", "## Summary (as printed)", "", "```", summary, "```", ""]
+    return "\n".join(md)
+
+
+def _pictures(meshes: dict, case, out: Path, progress) -> list:
+    """Render the kept meshes to ``out/img``; returns [(method, [relative paths])]."""
+    try:
+        from .render import render_mesh, section_face_colors
+    except ImportError as exc:
+        _log(f"bodyscan bench: no pictures ({exc})", progress)
+        return []
+    import warnings
+
+    done = []
+    body = case[0]
+    for method in [m for m in METHODS if m in meshes]:
+        mesh = meshes[method]
+        red = np.zeros(len(mesh["faces"]), bool)
+        for key in ("spurious", "bridging"):
+            if mesh.get(key) is not None:
+                red |= np.asarray(mesh[key], bool)
+        sec = mesh.get("face_section")
+        colors = section_face_colors(np.full(len(red), -1) if sec is None else sec, red)
+        files = []
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                name = f"img/{method}_{body}.png"
+                render_mesh(mesh["vertices"], mesh["faces"], colors, out / name,
+                            views=("front", "side", "back"), size=(360, 540),
+                            title=f"{method} / {body}: red = spurious or bridging")
+                files.append(name)
+                for cname, (center, radius) in mesh["closeups"].items():
+                    name = f"img/{method}_{body}_{cname}.png"
+                    render_mesh(mesh["vertices"], mesh["faces"], colors, out / name, views=("front",),
+                                size=(360, 360), close_up=(center, radius), title=f"{method}: {cname}")
+                    files.append(name)
+        except Exception as exc:  # pictures are a bonus: never lose the run for them
+            _log(f"bodyscan bench: picture of {method} failed ({type(exc).__name__}: {exc})", progress)
+        if files:
+            done.append((method, files))
+    return done
+
+
+def _git_commit() -> str | None:
+    try:
+        root = Path(__file__).resolve().parents[1]
+        out = subprocess.run(["git", "-C", str(root), "rev-parse", "HEAD"], capture_output=True,
+                             text=True, timeout=10)
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=10).stdout.strip()
+        return out.stdout.strip() + ("+dirty" if dirty else "") if out.returncode == 0 else None
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+def package_versions() -> dict:
+    """Versions of the packages that shape the numbers."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    out = {"python": platform.python_version()}
+    for name in ("bodyscan", "numpy", "scipy", "trimesh", "embreex", "open3d", "pymeshlab",
+                 "pandas", "pyarrow", "pyrender"):
+        try:
+            out[name] = version(name)
+        except PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def run_metadata(config: BenchConfig, started: float) -> dict:
+    """Settings, seeds, versions, commit and host of a run (``run.json``)."""
+    from recon import ReconParams
+
+    meta = {
+        "command": " ".join(sys.argv),
+        "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
+        "seconds": round(time.time() - started, 1),
+        "config": config.to_dict(),
+        "recon_params": ReconParams.from_overrides(dict(config.recon)).to_dict(),
+        "peer_params": dataclasses.asdict(PeerParams()),
+        "metric_params": dataclasses.asdict(config.metric),
+        "seeds": {"scan": config.seed, "metric_samples": config.metric.seed},
+        "versions": package_versions(),
+        "git_commit": _git_commit(),
+        "host": {"machine": platform.machine(), "system": platform.system(), "cpus": os.cpu_count()},
+        "sections": list(SECTIONS),
+    }
+    if _TRUTH_CACHE:
+        meta["closest_point_backend"] = next(iter(_TRUTH_CACHE.values())).index.backend
+    return json.loads(json.dumps(meta, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))

@@ -1,0 +1,165 @@
+"""The benchmark end to end on two small cases, `evaluate`/`score`, and `bodyscan score`."""
+
+import json
+from dataclasses import replace
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from benchmarks import BenchError
+from benchmarks.bench import METHODS, BenchConfig, evaluate, run_bench, score
+from benchmarks.cli import main
+from benchmarks.metrics import METRIC_NAMES, MetricParams
+from poses.body import load_body, save_body
+from poses.library import list_bodies
+
+METRICS = MetricParams(n_samples=20_000)
+
+
+def _rotated(body, degrees, name):
+    """The body turned about the vertical axis: a second case with a known, different scan."""
+    a = np.radians(degrees)
+    rot = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+    c = body.vertices.mean(axis=0) * [1, 1, 0]
+    return replace(body, name=name, vertices=(body.vertices - c) @ rot.T + c,
+                   joints=(body.joints - c) @ rot.T + c)
+
+
+@pytest.fixture(scope="module")
+def two_postures(tmp_path_factory):
+    """Two shipped postures, or standing and a turned copy while the library holds one."""
+    names = list_bodies()
+    if "standing" not in names:
+        pytest.skip("the pose library has no standing body")
+    if len(names) >= 2:
+        return ["standing", next(n for n in names if n != "standing")]
+    path = tmp_path_factory.mktemp("bodies") / "standing_turned.npz"
+    save_body(_rotated(load_body("standing"), 10, "standing_turned"), path)
+    return ["standing", str(path)]
+
+
+@pytest.fixture(scope="module")
+def bench_run(two_postures, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench")
+    methods = ("proposed", "simple")
+    config = BenchConfig(bodies=tuple(two_postures), ks=(1,), methods=methods, metric=METRICS)
+    return run_bench(config, out, progress=None)
+
+
+def test_bench_table_has_every_metric_and_parameter(bench_run, two_postures):
+    table = pd.read_parquet(bench_run.out / "results.parquet")
+    assert len(table) == 2 * 2                      # posture x scan x method
+    assert (table["status"] == "ok").all(), table[["body", "method", "error"]]
+    for name in METRIC_NAMES + ("fscore_full@5mm", "fscore_full@10mm", "peak_memory_mb",
+                                "time_total_s", "time_fit_s", "time_cluster_s", "time_surface_s",
+                                "bridging_pairs", "body", "method", "k", "preset", "seed"):
+        assert name in table.columns, name
+    assert any(c.startswith("recon.") for c in table.columns)
+    assert any(c.startswith("scanner.") for c in table.columns)
+    assert any(c.startswith("metric.") for c in table.columns)
+    assert set(table["method"]) == {"proposed", "simple"}
+    assert table["k"].eq(1).all() and table["scanner.laser_angle_deg"].eq(15).all()
+    # the same fit serves both methods of a scan, so the posture error is the same
+    for _, g in table.groupby("body"):
+        assert g["joint_error_median_m"].nunique() == 1
+    meta = json.loads((bench_run.out / "run.json").read_text())
+    assert meta["versions"]["numpy"] and "git_commit" in meta and meta["seeds"]["scan"] == 0
+    assert meta["recon_params"] and meta["config"]["ks"] == [1.0]
+    report = (bench_run.out / "report.md").read_text()
+    assert "## By method" in report and "proposed" in report and "simple" in report
+    assert "spur%" in bench_run.summary and "worst" in bench_run.summary
+
+
+def test_bench_pictures(bench_run):
+    imgs = sorted(p.name for p in (bench_run.out / "img").glob("*.png"))
+    for method in ("proposed", "simple"):
+        assert f"{method}_standing.png" in imgs
+        for c in ("armpit_l", "armpit_r", "crotch"):
+            assert f"{method}_standing_{c}.png" in imgs
+
+
+def test_proposed_beats_simple_on_surface_in_the_air(bench_run):
+    """The paper's claim (section 4.2): the method markedly reduces the armpit and crotch fills."""
+    t = bench_run.table.set_index(["body", "method"])
+    for body in t.index.get_level_values(0).unique():
+        prop, simp = t.loc[(body, "proposed")], t.loc[(body, "simple")]
+        assert prop["bridging_area_fraction"] < 0.5 * simp["bridging_area_fraction"], body
+        assert prop["spurious_area_fraction"] < simp["spurious_area_fraction"], body
+        assert prop["section_accuracy"] > simp["section_accuracy"], body
+
+
+@pytest.fixture(scope="module")
+def standing_scan():
+    import simulator
+
+    body = load_body("standing")
+    return body, simulator.scan(body, simulator.preset("paper", k=1), seed=0)
+
+
+def test_evaluate_takes_flat_params_and_scores_like_score(standing_scan):
+    import recon
+
+    body, sc = standing_scan
+    row = evaluate(body, sc, "simple", {"t_d": 0.25}, metric_params=METRICS)
+    assert row["recon.t_d"] == 0.25 and row["status"] == "ok" and row["method"] == "simple"
+    mesh = row["_mesh"]
+    assert len(mesh["faces"]) == row["n_faces"] and mesh["spurious"].sum() == row["spurious_count"]
+    assert set(mesh["closeups"]) == {"armpit_l", "armpit_r", "crotch"}
+    rec = recon.reconstruct(sc.points, "simple", recon.ReconParams.from_overrides({"t_d": 0.25}),
+                            view_dir=sc.view_dir)
+    direct = score(rec.vertices, rec.faces, body, sc, point_sections=rec.point_sections,
+                   joints=rec.fit.joints, metric_params=METRICS)
+    for name in METRIC_NAMES:
+        assert row[name] == pytest.approx(direct[name], nan_ok=True), name
+    with pytest.raises(BenchError, match="unknown method"):
+        evaluate(body, sc, "marching-cubes")
+    with pytest.raises(ValueError, match="t_x"):
+        evaluate(body, sc, "simple", {"t_x": 1})
+
+
+def test_peer_through_evaluate(standing_scan):
+    from benchmarks.peers import available_peers
+
+    if "bpa" not in available_peers():
+        pytest.skip("open3d is not installed")
+    body, sc = standing_scan
+    row = evaluate(body, sc, "bpa", metric_params=METRICS, keep_mesh=False)
+    assert "_mesh" not in row and row["peer.bpa_radii"] == "1.5,3.0,6.0"
+    assert np.isnan(row["section_accuracy"]) and np.isnan(row["joint_error_median_m"])
+    assert row["precision@5mm"] > 0.9 and row["time_surface_s"] > 0
+
+
+def test_score_command_matches_score(standing_scan, tmp_path, capsys):
+    import recon
+    import simulator
+
+    body, sc = standing_scan
+    rec = recon.reconstruct(sc.points, "proposed", view_dir=sc.view_dir)
+    mesh = rec.write(tmp_path / "mesh.ply")
+    cloud = simulator.write_cloud(sc, tmp_path / "cloud.ply")
+    out = tmp_path / "m.json"
+    assert main(["score", str(mesh), "--body", "standing", "--cloud", str(cloud), "--out", str(out),
+                 "--metric", "n_samples=20000"]) == 0
+    got = json.loads(out.read_text())
+    ref = score(rec.vertices, rec.faces, body, sc, metric_params=METRICS)
+    assert got["matched_vertex_fraction"] == 1.0
+    for name in ("spurious_area_fraction", "spurious_count", "bridging_area_fraction",
+                 "precision@5mm", "recall_seen@5mm", "chamfer_l1_mm"):
+        # the PLY holds float32 vertices: distances agree to micrometres
+        assert got[name] == pytest.approx(ref[name], rel=1e-3, abs=1e-3), name
+    # point labels read back from the faces' section property
+    assert got["section_accuracy"] > 0.5
+    # user errors: one line, exit code 2
+    assert main(["score", str(tmp_path / "nope.ply"), "--body", "standing"]) == 2
+    assert main(["score", str(mesh), "--body", "standing", "--metric", "colour=red"]) == 2
+    assert "colour" in capsys.readouterr().err
+
+
+def test_bench_rejects_bad_options():
+    with pytest.raises(BenchError, match="unknown method"):
+        BenchConfig(bodies=("standing",), methods=("nope",)).resolved()
+    with pytest.raises(BenchError, match="k values"):
+        BenchConfig(bodies=("standing",), ks=(0,), methods=("simple",)).resolved()
+    assert main(["bench", "--bodies", "no_such_body", "--no-peers"]) == 2
+    assert set(METHODS) >= {"proposed", "simple", "poisson", "bpa", "spsr"}
