@@ -33,12 +33,15 @@ simulates with `simulator` and scores with `benchmarks.bench.evaluate`)::
     scan(body: str, scanner: dict, seed: int) -> object     # anything picklable
     evaluate(scanned, method: str, recon: dict) -> dict     # metrics; optional "_mesh" entry
     check(sweep: Sweep) -> None                             # optional: raise on bad settings
+    recon_free_methods() -> tuple                           # optional: methods that ignore the
+                                                            # recon grid (run once per scan)
 
 A sweep file may name another one (``runner: mypackage.myrunner``), importable on every worker.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import importlib
 import itertools
@@ -51,8 +54,6 @@ import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-
-import numpy as np
 
 from . import BenchError
 from .store import ResultStore
@@ -108,6 +109,8 @@ class Sweep:
         Meshes kept per method for pictures: the worst jobs by spurious + bridging area.
     source : str
         The sweep file's text.
+    recon_free : tuple of str
+        Methods that take no reconstruction parameters: one job per scan.
     """
 
     name: str
@@ -120,6 +123,8 @@ class Sweep:
     keep_meshes: int = 3
     body_paths: dict = field(default_factory=dict)
     source: str = ""
+    recon_free: tuple = ()
+
 
     def jobs(self) -> list[Job]:
         """Every job, grouped by scan (all jobs of one scan are adjacent)."""
@@ -128,6 +133,10 @@ class Sweep:
             scan_key = {"body": body, "scanner": scanner, "seed": seed, "runner": self.runner}
             scan_id = _digest(scan_key)
             for method, recon in itertools.product(self.methods, self.recon):
+                if method in self.recon_free:   # one job per scan, whatever the recon grid
+                    if recon is not self.recon[0]:
+                        continue
+                    recon = {}
                 job_id = _digest({**scan_key, "method": method, "recon": recon})
                 out.append(Job(job_id, scan_id, body, seed, scanner, method, recon))
         return out
@@ -187,7 +196,10 @@ def load_sweep(path) -> Sweep:
     for name, values in (("bodies", bodies), ("seeds", seeds), ("methods", methods)):
         if len(set(values)) != len(values):
             raise BenchError(f"{path}: {name} lists a value twice")
-    check = getattr(_runner(sweep.runner, where), "check", None)
+    runner = _runner(sweep.runner, where)
+    if hasattr(runner, "recon_free_methods"):
+        sweep = dataclasses.replace(sweep, recon_free=tuple(runner.recon_free_methods()))
+    check = getattr(runner, "check", None)
     if check is not None:
         try:
             check(sweep)
@@ -599,17 +611,10 @@ def _provenance() -> dict:
 # -- the default runner: simulator + recon + benchmarks.bench ------------------------------------
 #
 # Work shared by the jobs of one scan is done once: the scan stage also estimates the posture with
-# the default fit parameters (the swept T_d, T_n factor and mesh size act after the fit), and each
-# worker process keeps the last ground truths it prepared (`benchmarks.metrics.GroundTruth`, which
-# cannot be pickled). A job whose fit parameters differ from the defaults fits again (once per
-# worker and setting).
-
-#: Close-ups drawn in reports: name -> (joints whose mean is the centre, offset (3,) m, radius m).
-CLOSEUPS = {
-    "armpit_l": (("shoulder_l",), (-0.03, 0.0, -0.10), 0.13),   # below and inside the shoulder
-    "armpit_r": (("shoulder_r",), (0.03, 0.0, -0.10), 0.13),
-    "crotch": (("hip_l", "hip_r"), (0.0, 0.0, -0.10), 0.15),
-}
+# the default fit parameters (the swept T_d, T_n factor and mesh size act after the fit); a job
+# whose fit parameters differ fits again, once per worker and setting. `benchmarks.bench` keeps
+# each worker's prepared ground truths. Peers take no reconstruction parameters: a sweep runs them
+# once per scan, whatever its ``recon`` grid.
 
 
 @dataclass
@@ -618,8 +623,8 @@ class Scanned:
 
     body: object                          # poses.Body
     scan: object                          # simulator.Scan
-    fits: dict = field(default_factory=dict)   # repr(FitParams) -> BodyFit or the ReconError
-    seconds: dict = field(default_factory=dict)  # time_scan_s, and time_fit_s per fit key
+    fits: dict = field(default_factory=dict)     # repr(FitParams) -> BodyFit, or its ReconError
+    seconds: dict = field(default_factory=dict)  # "scan", and repr(FitParams) -> fit seconds
 
 
 def check(sweep: Sweep) -> None:
@@ -627,16 +632,29 @@ def check(sweep: Sweep) -> None:
     from poses.body import load_body
     from recon import ReconParams
 
+    from .bench import METHODS
+    from .peers import PEERS, available_peers
+
+    bad = [m for m in sweep.methods if m not in METHODS]
+    if bad:
+        raise ValueError(f"unknown method(s) {', '.join(bad)} (known: {', '.join(METHODS)})")
+    missing = [m for m in sweep.methods if m in PEERS and m not in available_peers()]
+    if missing:
+        raise ValueError(f"method(s) {', '.join(missing)} need the peers extra: "
+                         "pip install 'bodyscan[peers]'")
     for body in sweep.bodies:
         load_body(sweep.body_paths.get(body, body)).require_ground_truth("scoring")
     for setting in sweep.scanner:
         _scanner_config(setting)
     for setting in sweep.recon:
         ReconParams.from_overrides(setting)
-    known = _known_methods()
-    bad = [m for m in sweep.methods if m not in known]
-    if bad:
-        raise ValueError(f"unknown method(s) {', '.join(bad)} (known: {', '.join(known)})")
+
+
+def recon_free_methods() -> tuple:
+    """Methods that take no reconstruction parameters (the peers)."""
+    from .peers import PEERS
+
+    return tuple(PEERS)
 
 
 def scan(body: str, scanner: dict, seed: int) -> Scanned:
@@ -649,51 +667,46 @@ def scan(body: str, scanner: dict, seed: int) -> Scanned:
     started = time.perf_counter()
     simulated = simulator.scan(loaded, _scanner_config(scanner), seed=seed)
     scanned = Scanned(loaded, simulated, seconds={"scan": time.perf_counter() - started})
-    params = ReconParams()
     try:
-        _fit_for(scanned, params)
-    except ReconError:      # stored; reported by every job that needs this fit
+        _fit_for(scanned, ReconParams())
+    except ReconError:      # kept in scanned.fits; reported by every job that needs this fit
         pass
     return scanned
 
 
 def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
-    """Default runner: reconstruct one scan with ``method`` and ``recon`` settings, and score it.
+    """Default runner: reconstruct one scan and score it with `benchmarks.bench.evaluate`.
 
-    Returns the metrics of `benchmarks.bench.evaluate` (plus ``_mesh``: the mesh, its section
-    labels, spurious and bridging faces, and the armpit and crotch close-ups, for pictures).
+    The row has bench's metrics and times (``time_fit_s`` is the shared fit's time, counted in
+    full for each job), ``time_scan_s``, and ``_mesh`` for the report's pictures.
     """
     from recon import ReconParams
 
-    params = ReconParams.from_overrides(recon)
-    fit = _fit_for(scanned, params) if method in _FIT_METHODS else None
-    truth = _truth_for(scanned.body)
-    row = _bench_evaluate(scanned, method, params, fit, truth)
-    # the shared stages, done once per scan, are charged to every job in full
+    from .bench import RECON_METHODS
+    from .bench import evaluate as bench_evaluate
+
+    fit, seconds, params = None, 0.0, None
+    if method in RECON_METHODS:
+        params = ReconParams.from_overrides(recon)
+        fit = _fit_for(scanned, params)
+        seconds = scanned.seconds.get(repr(params.fit), 0.0)
+    row = bench_evaluate(scanned.body, scanned.scan, method, params, fit=fit,
+                         fit_seconds=seconds, keep_mesh=True)
     row["time_scan_s"] = scanned.seconds.get("scan", math.nan)
-    if fit is not None:
-        row["time_fit_s"] = scanned.seconds.get(repr(params.fit), math.nan)
     return row
 
 
-#: Methods that use the posture fit (the paper's two); peers do not.
-_FIT_METHODS = ("proposed", "simple")
-_TRUTHS: dict = {}
-
-
-def _estimate_fit(simulated, params):
+def _fit_for(scanned: Scanned, params):
+    """The posture for ``params.fit`` (estimated once per scan and worker), or its error."""
+    from recon import ReconError
     from recon.pipeline import check_points, estimate_fit
 
-    return estimate_fit(check_points(simulated.points), params, simulated.view_dir)
-
-
-def _fit_for(scanned: Scanned, params):
     key = repr(params.fit)
-    if key not in scanned.fits:   # a swept fit parameter: fit here, keep it for this worker
-        from recon import ReconError
+    if key not in scanned.fits:
         started = time.perf_counter()
         try:
-            scanned.fits[key] = _estimate_fit(scanned.scan, params)
+            scanned.fits[key] = estimate_fit(check_points(scanned.scan.points), params,
+                                             scanned.scan.view_dir)
         except ReconError as exc:
             scanned.fits[key] = exc
         scanned.seconds[key] = time.perf_counter() - started
@@ -703,61 +716,8 @@ def _fit_for(scanned: Scanned, params):
     return fit
 
 
-def _truth_for(body):
-    """This worker's prepared ground truth of ``body`` (the last two are kept)."""
-    from .metrics import GroundTruth
-
-    key = (body.source or body.name, body.name, len(body.vertices))
-    if key not in _TRUTHS:
-        while len(_TRUTHS) >= 2:
-            _TRUTHS.pop(next(iter(_TRUTHS)))
-        _TRUTHS[key] = GroundTruth.from_body(body)
-    return _TRUTHS[key]
-
-
-def _closeups(body) -> dict:
-    joints = body.joint_dict() if body.has_ground_truth else {}
-    out = {}
-    for name, (names, offset, radius) in CLOSEUPS.items():
-        if all(n in joints for n in names):
-            center = np.mean([joints[n] for n in names], axis=0) + np.asarray(offset)
-            out[name] = (center, radius)
-    return out
-
-
-def _bench_evaluate(scanned: Scanned, method, params, fit, truth) -> dict:
-    """Reconstruct and score (interim: recon + metrics, until benchmarks.bench lands)."""
-    from recon import reconstruct
-
-    from .metrics import score_mesh
-
-    simulated = scanned.scan
-    rec = reconstruct(simulated.points, method, params, view_dir=simulated.view_dir, fit=fit)
-    row = score_mesh(rec.vertices, rec.faces, truth, scan_points=simulated.points,
-                     scan_gt_face=simulated.gt_face, scan_gt_section=simulated.gt_section,
-                     point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
-                     joints=getattr(rec.fit, "joints", None), keep_masks=True)
-    row.update({f"time_{k}_s": float(v) for k, v in rec.times.items()})
-    used = np.unique(rec.faces)
-    remap = np.full(len(rec.vertices), -1)
-    remap[used] = np.arange(len(used))
-    row["_mesh"] = {"vertices": rec.vertices[used], "faces": remap[rec.faces],
-                    "face_section": rec.face_section, "spurious": row.pop("_spurious"),
-                    "bridging": row.pop("_bridging"), "closeups": _closeups(scanned.body)}
-    return row
-
-
 def _scanner_config(setting: dict):
     import simulator
 
     setting = dict(setting)
     return simulator.preset(setting.pop("preset", "paper"), **setting)
-
-
-def _known_methods() -> tuple:
-    try:
-        from .bench import METHODS
-        return tuple(METHODS)
-    except ImportError:
-        from recon.pipeline import METHODS
-        return tuple(METHODS)

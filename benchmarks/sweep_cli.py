@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import signal
 import sys
 from pathlib import Path
@@ -14,7 +13,6 @@ def register(sub) -> None:
     """Add ``sweep`` and ``report`` to the ``bodyscan`` subcommands."""
     p = sub.add_parser(
         "sweep", help="run a parameter sweep (grid over scanner and reconstruction settings)",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Run every job of a sweep file (bodies x seeds x scanner settings x methods "
                     "x reconstruction parameters), storing each result the moment it is done "
                     "(one Parquet part per job in DIR/parts/). A failing job is stored with its "
@@ -41,8 +39,11 @@ def register(sub) -> None:
                        "optionally gate on a baseline",
         description="Tables by method and posture, heat maps of spurious and bridging area over "
                     "T_d and the T_n factor, curves over the mesh size, per-posture bars, time per "
-                    "stage, and pictures of the worst reconstructions. With --baseline, compare "
-                    "the tracked metrics with a baseline file.")
+                    "stage, and pictures of the worst reconstructions (report.md, and index.html "
+                    "with every image inlined). With --baseline, the accuracy gate compares, per "
+                    "method and posture, the mean spurious and bridging area fractions, F-score "
+                    "(seen, 5 mm), section accuracy and median joint error with the baseline; "
+                    "tolerances are stored in the baseline file.")
     r.add_argument("sweep_dir", metavar="DIR", type=Path, help="sweep folder (bodyscan sweep --out)")
     r.add_argument("--out", metavar="DIR", type=Path,
                    help="report folder (default: reports/<sweep name>/)")

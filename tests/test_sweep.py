@@ -44,6 +44,9 @@ TOY_RUNNER = textwrap.dedent('''
                 "bridging_area_fraction": 0.01 * scanned["seed"] + (method == "m2"),
                 "scan_pid": scanned["pid"], "eval_pid": os.getpid()}
 
+    def recon_free_methods():
+        return ("peer",)
+
     def check(sweep):
         for setting in sweep.recon:
             if "t_d" not in setting:
@@ -119,6 +122,18 @@ def test_job_ids_are_stable_and_distinct(tmp_path, toy):
     assert len({j.scan_id for j in jobs}) == 2 * 2 * 2
     again = load_sweep(write_sweep(tmp_path / "t.yaml", seeds=[0, 1], methods=["m1", "m2"]))
     assert [j.job_id for j in again.jobs()] == [j.job_id for j in jobs]
+
+
+def test_methods_without_recon_parameters_run_once_per_scan(tmp_path, toy):
+    sweep = load_sweep(write_sweep(tmp_path / "s.yaml", methods=["m1", "peer"]))
+    jobs = sweep.jobs()
+    per_scan = {}
+    for job in jobs:
+        per_scan.setdefault(job.scan_id, []).append((job.method, job.recon))
+    assert len(per_scan) == 4
+    for entries in per_scan.values():
+        assert sorted(entries, key=str) == sorted(
+            [("m1", {"t_d": 0.1}), ("m1", {"t_d": 0.3}), ("peer", {})], key=str)
 
 
 # -- local engine ------------------------------------------------------------------------------
