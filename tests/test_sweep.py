@@ -344,3 +344,15 @@ def test_default_runner_on_the_standing_body(tmp_path):
     assert np.linalg.norm(center - joints["shoulder_l"]) < radius
     center, radius = mesh["closeups"]["crotch"]
     assert np.linalg.norm(center - (joints["hip_l"] + joints["hip_r"]) / 2) < radius
+
+
+def test_shipped_sweep_files():
+    from benchmarks.sweep_cli import SWEEPS_DIR
+
+    paper = load_sweep(SWEEPS_DIR / "paper.yaml")
+    jobs = paper.jobs()
+    assert len(jobs) == 5 * 5 * 3 * 11 and len({j.scan_id for j in jobs}) == 11
+    assert {(s["mesh_theta"], s["mesh_h"]) for s in paper.recon} == {(5, 5), (10, 10), (20, 20)}
+    assert {s["t_d"] for s in paper.recon} >= {0.3} and paper.methods == ("proposed",)
+    ci = load_sweep(SWEEPS_DIR / "ci.yaml")
+    assert set(ci.methods) == {"proposed", "simple"} and len(ci.jobs()) <= 12
