@@ -24,13 +24,32 @@ NS = len(SECTIONS)
 
 
 # -- 1. coordinates ------------------------------------------------------------------------------
-def section_coordinates(points: np.ndarray, fit: BodyFit):
+def near_section(shape, points: np.ndarray, margin: float) -> np.ndarray:
+    """(k,) indices of ``points`` (n, 3) inside the axis-aligned box around ``shape`` grown by
+    ``margin`` metres (an open end is grown by ``shape.length`` more)."""
+    reach = float(shape.radii.max()) + float(shape.caps.max()) + margin
+    a, b = shape.start.copy(), shape.end.copy()
+    if not shape.closed[0]:
+        a = a - shape.axis * shape.length
+    if not shape.closed[1]:
+        b = b + shape.axis * shape.length
+    lo, hi = np.minimum(a, b) - reach, np.maximum(a, b) + reach
+    inside = np.ones(len(points), dtype=bool)
+    for k in range(3):
+        inside &= (points[:, k] >= lo[k]) & (points[:, k] <= hi[k])
+    return np.flatnonzero(inside)
+
+
+def section_coordinates(points: np.ndarray, fit: BodyFit, margin: float | None = None):
     """Section coordinates of every point for every section.
 
     Parameters
     ----------
     points : (n, 3) float, metres
     fit : BodyFit
+    margin : float, optional
+        Only points within ``margin`` (metres) of a section's bounding box get its coordinates;
+        the others get ``r = inf`` (far outside) and NaN angle and height. Default: every point.
 
     Returns
     -------
@@ -38,7 +57,20 @@ def section_coordinates(points: np.ndarray, fit: BodyFit):
         Signed distance from each section's model surface (metres, negative inside), angle around
         its axis (radians) and position along it (metres); NaN for sections absent from ``fit``.
     """
-    return section_coords(fit.sections, points)
+    if margin is None:
+        return section_coords(fit.sections, points)
+    n = len(points)
+    r = np.full((n, NS), np.nan)
+    theta = np.full((n, NS), np.nan)
+    h = np.full((n, NS), np.nan)
+    for j, name in enumerate(SECTIONS):
+        if name not in fit.sections:
+            continue
+        shape = fit.sections[name]
+        idx = near_section(shape, points, margin)
+        r[:, j] = np.inf
+        r[idx, j], theta[idx, j], h[idx, j] = shape.coords(points[idx])
+    return r, theta, h
 
 
 def section_widths(fit: BodyFit) -> np.ndarray:
@@ -192,37 +224,50 @@ def neighbor_radius(points: np.ndarray, params: ClusterParams, tree=None) -> flo
     return params.neighbor_spacing * max(spacing, 1e-6)
 
 
-def _neighbors(tree, points, rows, radius):
-    """CSR-like neighbour lists of ``rows`` (excluding themselves): (row position, neighbour) pairs."""
-    lists = tree.query_ball_point(points[rows], radius, workers=1)
-    lens = np.fromiter((len(x) for x in lists), dtype=np.int64, count=len(lists))
-    cols = np.fromiter((i for x in lists for i in x), dtype=np.int64, count=int(lens.sum()))
-    pos = np.repeat(np.arange(len(rows)), lens)
-    keep = cols != rows[pos]
-    return pos[keep], cols[keep]
+#: At most this many neighbours per point are used by the multi-section rules (the nearest ones
+#: within the radius); about three times what a regular grid holds within the default radius.
+MAX_NEIGHBORS = 32
 
 
-def adopt_unlabeled(member: np.ndarray, points: np.ndarray, radius: float, max_rounds: int = 20) -> np.ndarray:
+def _neighbors(tree, points, rows, radius, k=MAX_NEIGHBORS):
+    """Neighbour pairs of ``rows`` (excluding themselves): (row position, neighbour index) arrays."""
+    k = min(k + 1, tree.n)
+    d, nb = tree.query(points[rows], k=k, distance_upper_bound=radius)
+    d, nb = d.reshape(len(rows), k), nb.reshape(len(rows), k)
+    ok = np.isfinite(d) & (nb != rows[:, None])
+    pos = np.broadcast_to(np.arange(len(rows))[:, None], ok.shape)[ok]
+    return pos, nb[ok]
+
+
+def adopt_unlabeled(member: np.ndarray, points: np.ndarray, radius: float, max_rounds: int = 20,
+                    tree=None, k: int = 12) -> np.ndarray:
     """Points in no section take the sections of their nearest labelled point within ``radius``.
 
     Repeated (up to ``max_rounds``), so that labels spread into a connected unlabelled region
-    (fingers, toes, a nose further than T_d from the model). Returns a copy of ``member`` (n, 11);
-    points with no labelled point within reach stay unlabelled.
+    (fingers, toes, a nose further than T_d from the model); the nearest labelled point is looked
+    for among the ``k`` nearest points. Returns a copy of ``member`` (n, 11); points with no
+    labelled point within reach stay unlabelled.
     """
     from scipy.spatial import cKDTree
 
     out = member.copy()
+    lone = np.flatnonzero(~out.any(axis=1))
+    if len(lone) == 0 or len(lone) == len(points):
+        return out
+    tree = tree if tree is not None else cKDTree(points)
+    k = min(k, len(points))
+    d, nb = tree.query(points[lone], k=k, distance_upper_bound=radius)
+    d, nb = d.reshape(len(lone), k), nb.reshape(len(lone), k)
+    ok = np.isfinite(d)
+    nb = np.where(ok, nb, 0)
     for _ in range(max_rounds):
         labelled = out.any(axis=1)
-        lone = np.flatnonzero(~labelled)
-        if len(lone) == 0 or not labelled.any():
+        has = ok & labelled[nb]
+        take = has.any(axis=1) & ~labelled[lone]
+        if not take.any():
             break
-        src = np.flatnonzero(labelled)
-        d, k = cKDTree(points[src]).query(points[lone], k=1, distance_upper_bound=radius)
-        ok = np.isfinite(d)
-        if not ok.any():
-            break
-        out[lone[ok]] = out[src[k[ok]]]
+        first = nb[np.arange(len(lone)), has.argmax(axis=1)]
+        out[lone[take]] = out[first[take]]
     return out
 
 
@@ -494,5 +539,5 @@ def cluster_points(points: np.ndarray, fit: BodyFit, method: str = "proposed",
     radius = neighbor_radius(points, params, tree)
     member = refine_by_distance(member, r, theta, h, fit, params)
     if params.adopt_unlabeled:
-        member = adopt_unlabeled(member, points, radius, params.max_rounds)
+        member = adopt_unlabeled(member, points, radius, params.max_rounds, tree)
     return settle_multi(member, points, r, h, fit, params, tree=tree, radius=radius)

@@ -200,7 +200,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         raise ReconError("the fitted model has no sections: nothing to reconstruct")
 
     t0 = time.perf_counter()
-    coords = section_coordinates(p, fit)
+    widest = max(s.width for s in fit.sections.values())
+    coords = section_coordinates(p, fit, margin=params.cluster.t_d * widest + 0.01)
     times["coords"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     member = cluster_points(p, fit, method, params.cluster, coords=coords)

@@ -19,18 +19,27 @@ import warnings
 import numpy as np
 
 from .model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
+from .cluster import near_section
 from .params import SurfaceParams
 
 TWO_PI = 2 * np.pi
 
+#: The seam copies reach at most this many median point spacings past theta = 0 and 2*pi: enough
+#: for Delaunay to see the same neighbourhoods on both sides, few copies on dense scans.
+SEAM_SPACINGS = 10.0
 
-def median_spacing(points: np.ndarray) -> float:
-    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point."""
+
+def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0) -> float:
+    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point
+    (over a seeded sample of ``sample`` points when there are more)."""
     from scipy.spatial import cKDTree
 
     if len(points) < 2:
         return 0.0
-    d, _ = cKDTree(points).query(points, k=2)
+    q = points
+    if len(points) > sample:
+        q = points[np.random.default_rng(seed).choice(len(points), sample, replace=False)]
+    d, _ = cKDTree(points).query(q, k=2)
     return float(np.median(d[:, 1]))
 
 
@@ -39,6 +48,22 @@ def max_edge_length(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     p = points[faces]
     e = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 1], p[:, 0] - p[:, 2]], axis=1)
     return np.linalg.norm(e, axis=2).max(axis=1)
+
+
+def edge_keys(faces: np.ndarray) -> np.ndarray:
+    """(k, 3) int64 key of each face's edges (v1 v2, v2 v3, v3 v1), equal for shared edges."""
+    f = np.asarray(faces, dtype=np.int64)
+    n = int(f.max()) + 1 if len(f) else 1
+    a = np.stack([f[:, 0], f[:, 1], f[:, 2]], axis=1)
+    b = np.stack([f[:, 1], f[:, 2], f[:, 0]], axis=1)
+    return np.minimum(a, b) * n + np.maximum(a, b)
+
+
+def face_keys(faces: np.ndarray) -> np.ndarray:
+    """(k,) int64 key of each face's vertex set (equal for the same three vertices in any order)."""
+    f = np.sort(np.asarray(faces, dtype=np.int64), axis=1)
+    n = int(f.max()) + 1 if len(f) else 1
+    return (f[:, 0] * n + f[:, 1]) * n + f[:, 2]
 
 
 def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
@@ -53,16 +78,18 @@ def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
     alive = np.ones(k, dtype=bool)
     if k == 0 or not too_long.any():
         return alive
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    _, edge = np.unique(e, axis=0, return_inverse=True)
-    edge = edge.reshape(3, k).T                            # (k, 3) edge ids of each face
-    n_edges = int(edge.max()) + 1
+    _, edge = np.unique(edge_keys(faces).ravel(), return_inverse=True)
+    edge = edge.reshape(k, 3)
+    use = np.bincount(edge.ravel())
+    cand = np.flatnonzero(too_long)
     for _ in range(k):
-        use = np.bincount(edge[alive].ravel(), minlength=n_edges)
-        cand = alive & too_long & (use[edge] == 1).any(axis=1)
-        if not cand.any():
+        out = (use[edge[cand]] == 1).any(axis=1)
+        if not out.any():
             break
-        alive[cand] = False
+        gone = cand[out]
+        alive[gone] = False
+        np.subtract.at(use, edge[gone].ravel(), 1)
+        cand = cand[~out]
     return alive
 
 
@@ -132,7 +159,7 @@ def cap_chart(local: np.ndarray, shape: SectionShape, end: int):
 
 
 def section_surface(points: np.ndarray, shape: SectionShape,
-                    params: SurfaceParams = SurfaceParams()) -> np.ndarray:
+                    params: SurfaceParams = SurfaceParams(), spacing: float | None = None) -> np.ndarray:
     """Triangulate one section's points by Delaunay on its model surface.
 
     Parameters
@@ -141,6 +168,8 @@ def section_surface(points: np.ndarray, shape: SectionShape,
         The points clustered into the section.
     shape : SectionShape
     params : SurfaceParams
+    spacing : float, optional
+        Median point spacing, metres (default: measured on ``points``).
 
     Returns
     -------
@@ -150,7 +179,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     m = len(points)
     if m < 3:
         return np.zeros((0, 3), dtype=np.int64)
-    spacing = max(median_spacing(points), 1e-9)
+    spacing = max(median_spacing(points) if spacing is None else spacing, 1e-9)
     hull_limit = params.hull_edge_factor * spacing
     R = float(shape.radii.mean())
     L = shape.length
@@ -164,7 +193,8 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     # column chart
     sel = np.flatnonzero((h >= h_lo - band) & (h <= h_hi + band))
     if len(sel) >= 3:
-        uv, src = column_chart(theta[sel], h[sel], R, params.seam_overlap)
+        overlap = min(params.seam_overlap, SEAM_SPACINGS * spacing / R)
+        uv, src = column_chart(theta[sel], h[sel], R, overlap)
         tri = _delaunay(uv)
         if tri is not None:
             simp = tri.simplices
@@ -217,9 +247,10 @@ def _end_loops(faces: np.ndarray, h: np.ndarray, length: float):
     """Vertices of the boundary edges of column ``faces`` near the start and near the end."""
     if len(faces) == 0:
         return [np.zeros(0, dtype=np.int64)] * 2
-    e = np.sort(np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]]), axis=1)
-    u, c = np.unique(e, axis=0, return_counts=True)
-    b = u[c == 1]
+    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
+    key = edge_keys(faces).T.ravel()
+    u, first, c = np.unique(key, return_index=True, return_counts=True)
+    b = e[first[c == 1]]
     hb = h[b].mean(axis=1)
     return [np.unique(b[hb < length / 2]), np.unique(b[hb >= length / 2])]
 
@@ -228,8 +259,7 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
     """``faces`` (k, 3) without repeats of the same vertex set (first kept, order preserved)."""
     if len(faces) == 0:
         return faces.reshape(0, 3).astype(np.int64)
-    key = np.sort(faces, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
+    _, first = np.unique(face_keys(faces), return_index=True)
     return faces[np.sort(first)].astype(np.int64)
 
 
@@ -266,17 +296,17 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
         return faces
     p = points[faces]
     normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    centroid = p.mean(axis=1)
-    ref = np.zeros_like(centroid)
-    for j, name in enumerate(SECTIONS):
-        sel = face_section == j
-        if sel.any() and name in fit.sections:
-            ref[sel] = model_outward(fit.sections[name], centroid[sel])
+    ref = np.zeros_like(normal)
+    unclear = np.ones(len(faces), dtype=bool)
     if view_dir is not None:
         vd = np.asarray(view_dir, dtype=float)
         mean = vd[faces].mean(axis=1) if vd.ndim == 2 else np.broadcast_to(vd, ref.shape)
-        clear = np.linalg.norm(mean, axis=1) >= min_agreement
-        ref[clear] = mean[clear]
+        unclear = np.einsum("ij,ij->i", mean, mean) < min_agreement ** 2
+        ref[~unclear] = mean[~unclear]
+    for j, name in enumerate(SECTIONS):
+        sel = np.flatnonzero(unclear & (face_section == j))
+        if len(sel) and name in fit.sections:
+            ref[sel] = model_outward(fit.sections[name], p[sel].mean(axis=1))
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
     return faces
@@ -308,8 +338,9 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
             if other not in fit.sections:
                 continue
             shape = fit.sections[other]
-            r = shape.coords(cen[sel])[0]
-            out[sel[r < -depth * shape.width]] = True
+            near = sel[near_section(shape, cen[sel], 0.0)]
+            r = shape.coords(cen[near])[0]
+            out[near[r < -depth * shape.width]] = True
     return out
 
 
@@ -343,8 +374,7 @@ def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, 
     if drop_inner:
         keep = ~multi[faces].all(axis=1)
         faces, sec = faces[keep], sec[keep]
-    key = np.sort(faces, axis=1)
-    _, first = np.unique(key, axis=0, return_index=True)
+    _, first = np.unique(face_keys(faces), return_index=True)
     first = np.sort(first)
     faces, sec = faces[first], sec[first]
     keep = face_areas(points, faces) > 1e-12
@@ -378,6 +408,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     """
     per = {}
     skipped = []
+    spacing = median_spacing(points)
     for j, name in enumerate(SECTIONS):
         if name not in fit.sections:
             continue
@@ -390,7 +421,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         shape = fit.sections[name]
         if params.open_joints and _has_parent(name, fit):
             shape = shape.replace(closed=(False, shape.closed[1]))
-        f = section_surface(points[idx], shape, params)
+        f = section_surface(points[idx], shape, params, spacing)
         per[j] = idx[f]
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
