@@ -15,11 +15,20 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 
 from . import ScanError
 
 PROJECTIONS = ("parallel", "perspective")
+
+
+def _set_number(obj, name: str, what: str) -> None:
+    """Store field ``name`` of a frozen dataclass as a finite Python float, or raise `ScanError`."""
+    value = getattr(obj, name)
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(value):
+        raise ScanError(f"{what} must be a finite number, got {value!r}")
+    object.__setattr__(obj, name, float(value))
 
 
 @dataclass(frozen=True)
@@ -56,9 +65,9 @@ class Head:
     laser_roll_deg: float = 0.0
 
     def __post_init__(self):
+        object.__setattr__(self, "name", str(self.name))
         for f in ("azimuth_deg", "height", "tilt_deg", "field_width", "field_height", "laser_roll_deg"):
-            if not math.isfinite(float(getattr(self, f))):
-                raise ScanError(f"head {self.name!r}: {f} must be a finite number")
+            _set_number(self, f, f"head {self.name!r}: {f}")
         if self.field_width <= 0 or self.field_height <= 0:
             raise ScanError(f"head {self.name!r}: field_width and field_height must be positive metres")
         if not -89.0 <= self.tilt_deg <= 89.0:
@@ -168,6 +177,13 @@ class ScannerConfig:
         if len(heads) > 255:
             raise ScanError("at most 255 heads")
         object.__setattr__(self, "heads", heads)
+        for name in ("laser_angle_deg", "resolution", "camera_distance", "noise_sigma", "outlier_fraction",
+                     "outlier_spread", "misalign_deg", "misalign_mm", "max_incidence_deg"):
+            _set_number(self, name, f"scanner {name}")
+        if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool) or self.seed < 0:
+            raise ScanError(f"seed must be a non-negative integer, got {self.seed!r}")
+        object.__setattr__(self, "seed", int(self.seed))
+        object.__setattr__(self, "center_on_body", bool(self.center_on_body))
         checks = (
             ("laser_angle_deg", -89.9 < self.laser_angle_deg < 89.9, "within (-90, 90) degrees"),
             ("resolution", self.resolution > 0, "positive metres"),
@@ -180,13 +196,10 @@ class ScannerConfig:
             ("max_incidence_deg", 0 < self.max_incidence_deg <= 90, "within (0, 90] degrees"),
         )
         for name, ok, what in checks:
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and ok):
-                raise ScanError(f"scanner {name} must be {what}, got {value!r}")
+            if not ok:
+                raise ScanError(f"scanner {name} must be {what}, got {getattr(self, name)!r}")
         if self.resolution < 1e-4:
             raise ScanError(f"scanner resolution {self.resolution} m is below 0.1 mm; give metres")
-        if not isinstance(self.seed, int) or isinstance(self.seed, bool) or self.seed < 0:
-            raise ScanError(f"seed must be a non-negative integer, got {self.seed!r}")
 
     @property
     def k(self) -> float:
