@@ -390,7 +390,59 @@ def _estimate_fit(scan, params):
     return fit, time.perf_counter() - t0
 
 
-def run_bench(config: BenchConfig | None = None, out=None, *, progress=sys.stderr) -> BenchResult:
+def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bool) -> list:
+    """Every scan and method of one posture: [(row, mesh or None)] (runs in a worker process)."""
+    import simulator
+    from poses.body import load_body
+
+    body = load_body(body_name)
+    ground_truth(body, config.metric)
+    uses_recon = any(m in RECON_METHODS for m in config.methods)
+    out = []
+    for preset in config.presets:
+        for k in config.ks:
+            cfg = simulator.preset(preset, **{**config.scanner, "k": k})
+            t0 = time.perf_counter()
+            sc = simulator.scan(body, cfg, seed=config.seed)
+            scan_s = time.perf_counter() - t0
+            fit, fit_s, fit_mb, fit_error = None, 0.0, 0.0, None
+            if uses_recon:
+                try:
+                    with PeakMemory() as mem:
+                        fit, fit_s = _estimate_fit(sc, _recon_params(dict(config.recon)))
+                    fit_mb = mem.peak_mb
+                except Exception as exc:  # the recon methods of this scan fail with it
+                    fit_error = f"{type(exc).__name__}: {exc}"
+            for method in config.methods:
+                base = {"body": body.name, "method": method, "preset": preset, "k": float(k),
+                        "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
+                t0 = time.perf_counter()
+                try:
+                    if method in RECON_METHODS and fit_error:
+                        raise BenchError(f"posture estimation failed: {fit_error}")
+                    row = evaluate(body, sc, method, dict(config.recon) if method in RECON_METHODS else None,
+                                   metric_params=config.metric, fit=fit, fit_seconds=fit_s,
+                                   keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
+                    if method in RECON_METHODS:
+                        row["peak_memory_mb"] = max(row["peak_memory_mb"], fit_mb)
+                    row = {**base, **row}
+                except Exception as exc:
+                    if isinstance(exc, (KeyboardInterrupt, MemoryError)):
+                        raise
+                    row = {**base, "status": "error", "error": f"{type(exc).__name__}: {exc}"}
+                mesh = row.pop("_mesh", None)
+                out.append((row, mesh))
+                if verbose:
+                    status = f"error: {row['error']}" if row["status"] != "ok" else (
+                        f"spurious {100 * row['spurious_area_fraction']:.2f} %, bridging "
+                        f"{row['bridging_area_cm2']:.0f} cm2, F_seen@5mm {row['fscore_seen@5mm']:.3f}")
+                    _log(f"  {body.name} {preset} k={k:g} {method}: {status} "
+                         f"({time.perf_counter() - t0:.1f} s)", sys.stderr)
+    return out
+
+
+def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
+              progress=sys.stderr) -> BenchResult:
     """Run the benchmark and write its report folder.
 
     Parameters
@@ -399,73 +451,59 @@ def run_bench(config: BenchConfig | None = None, out=None, *, progress=sys.stder
         Default: the paper's experiment on the shipped library.
     out : str or Path, optional
         Report folder; default ``reports/<run-id>`` under the current directory.
+    jobs : int
+        Postures run at the same time, in worker processes. Stage times are then measured while
+        the other workers run too; use 1 for uncontended times.
     progress : file or None
-        Where progress lines go (stderr).
+        Where progress lines go (stderr); None for silence.
 
     Returns
     -------
     BenchResult
     """
     import pandas as pd
-    import simulator
-    from poses.body import load_body
 
     started = time.time()
     config = (config or BenchConfig()).resolved()
+    if jobs < 1:
+        raise BenchError(f"jobs must be at least 1, got {jobs}")
     out = Path(out) if out is not None else Path("reports") / run_id()
     out.mkdir(parents=True, exist_ok=True)
-    cases = [(b, p, k) for b in config.bodies for p in config.presets for k in config.ks]
-    n_jobs = len(cases) * len(config.methods)
+    n_cases = len(config.bodies) * len(config.presets) * len(config.ks) * len(config.methods)
     _log(f"bodyscan bench: {len(config.bodies)} posture(s) x {len(config.presets)} preset(s) x "
-         f"{len(config.ks)} k x {len(config.methods)} method(s) = {n_jobs} reconstructions -> {out}",
-         progress)
-    rows, meshes = [], {}
-    done = 0
+         f"{len(config.ks)} k x {len(config.methods)} method(s) = {n_cases} reconstructions, "
+         f"{jobs} process(es) -> {out}", progress)
     picture_body = "standing" if "standing" in config.bodies else config.bodies[0]
     picture_case = (picture_body, config.presets[0], config.ks[0])
-    uses_recon = [m for m in config.methods if m in RECON_METHODS]
-    for body_name, preset, k in cases:
-        body = load_body(body_name)
-        ground_truth(body, config.metric)
-        cfg = simulator.preset(preset, **{**config.scanner, "k": k})
-        t0 = time.perf_counter()
-        sc = simulator.scan(body, cfg, seed=config.seed)
-        scan_s = time.perf_counter() - t0
-        fit, fit_s, fit_error = None, 0.0, None
-        if uses_recon:
-            try:
-                fit, fit_s = _estimate_fit(sc, _recon_params(dict(config.recon)))
-            except Exception as exc:  # the recon methods of this scan fail with it
-                fit_error = f"{type(exc).__name__}: {exc}"
-        for method in config.methods:
-            base = {"body": body.name, "method": method, "preset": preset, "k": float(k),
-                    "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
-            t0 = time.perf_counter()
-            try:
-                if method in RECON_METHODS and fit_error:
-                    raise BenchError(f"posture estimation failed: {fit_error}")
-                row = evaluate(body, sc, method, dict(config.recon) if method in RECON_METHODS else None,
-                               metric_params=config.metric, fit=fit, fit_seconds=fit_s,
-                               keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
-                row = {**base, **row}
-            except Exception as exc:
-                if isinstance(exc, (KeyboardInterrupt, MemoryError)):
-                    raise
-                row = {**base, "status": "error", "error": f"{type(exc).__name__}: {exc}"}
-            mesh = row.pop("_mesh", None)
-            if mesh is not None:
-                meshes[method] = mesh
-            rows.append(row)
-            done += 1
-            status = row["status"] if row["status"] != "ok" else (
-                f"spurious {100 * row['spurious_area_fraction']:.2f} %, bridging "
-                f"{row['bridging_area_cm2']:.0f} cm2, F_seen@5mm {row['fscore_seen@5mm']:.3f}")
-            _log(f"[{done}/{n_jobs}] {body.name} {preset} k={k:g} {method}: {status} "
-                 f"({time.perf_counter() - t0:.1f} s)", progress)
+    verbose = progress is not None
+    results: dict = {}
+
+    def finished(name, pairs):
+        results[name] = pairs
+        bad = sum(r["status"] != "ok" for r, _ in pairs)
+        _log(f"[{len(results)}/{len(config.bodies)} postures, {time.time() - started:.0f} s] "
+             f"{name} done" + (f", {bad} failed" if bad else ""), progress)
+
+    if jobs == 1 or len(config.bodies) == 1:
+        for name in config.bodies:
+            finished(name, _bench_body(name, config, picture_case, verbose))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(config.bodies)),
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(_bench_body, name, config, picture_case, verbose): name
+                       for name in config.bodies}
+            for f in as_completed(futures):
+                finished(futures[f], f.result())
+    pairs = [p for name in config.bodies for p in results[name]]
+    rows = [r for r, _ in pairs]
+    meshes = {r["method"]: m for r, m in pairs if m is not None}
     table = pd.DataFrame(rows)
     table.to_parquet(out / "results.parquet", index=False)
     summary = summary_table(table)
-    (out / "run.json").write_text(json.dumps(run_metadata(config, started), indent=2, default=str))
+    (out / "run.json").write_text(json.dumps(run_metadata(config, started, jobs), indent=2, default=str))
     pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
     (out / "report.md").write_text(report_markdown(table, config, summary, pictures, picture_case))
     _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
@@ -475,11 +513,6 @@ def run_bench(config: BenchConfig | None = None, out=None, *, progress=sys.stder
 
 # --------------------------------------------------------------------------------------------------
 # tables, pictures, metadata
-
-
-def _per_posture(table, metric):
-    ok = table[table["status"] == "ok"]
-    return ok.groupby(["method", "body"])[metric].mean()
 
 
 def method_summary(table):
@@ -659,7 +692,7 @@ def package_versions() -> dict:
     return out
 
 
-def run_metadata(config: BenchConfig, started: float) -> dict:
+def run_metadata(config: BenchConfig, started: float, jobs: int = 1) -> dict:
     """Settings, seeds, versions, commit and host of a run (``run.json``)."""
     from recon import ReconParams
 
@@ -667,6 +700,7 @@ def run_metadata(config: BenchConfig, started: float) -> dict:
         "command": " ".join(sys.argv),
         "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
         "seconds": round(time.time() - started, 1),
+        "jobs": jobs,
         "config": config.to_dict(),
         "recon_params": ReconParams.from_overrides(dict(config.recon)).to_dict(),
         "peer_params": dataclasses.asdict(PeerParams()),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -56,6 +57,8 @@ def register(sub) -> None:
                         "n_samples (50000), seen_radius_m (0.015), seed (0), oriented (true), "
                         "backend (auto/open3d/numpy); repeatable")
     p.add_argument("--seed", type=int, default=0, help="scan seed (noise, outliers, misalignment)")
+    p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
+                   help="postures run at once in worker processes (1: uncontended stage times)")
     p.add_argument("--out", default=None, metavar="DIR", help="report folder (default: reports/<run-id>)")
     p.add_argument("--no-pictures", action="store_true", help="skip the pictures")
     p.set_defaults(func=bench_command)
@@ -116,7 +119,7 @@ def bench_command(args) -> int:
                          methods=methods, recon=_pairs(args.param, "--param"),
                          scanner=_scanner(args.scanner), seed=args.seed,
                          metric=_metric_params(args.metric), pictures=not args.no_pictures)
-    result = run_bench(config, args.out)
+    result = run_bench(config, args.out, jobs=args.jobs)
     print(result.summary)
     print(f"\nreport: {result.out / 'report.md'}")
     failed = int((result.table["status"] != "ok").sum())
