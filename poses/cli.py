@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 
 def register(sub) -> None:
     """Add the ``poses`` command to the ``bodyscan`` subparsers ``sub``."""
@@ -10,6 +12,35 @@ def register(sub) -> None:
     psub = p.add_subparsers(dest="poses_command", required=True, metavar="SUBCOMMAND")
     lst = psub.add_parser("list", help="list the shipped bodies (name, height in m, vertex count)")
     lst.set_defaults(func=_list)
+
+    show = psub.add_parser(
+        "show", help="three-view picture of a body, coloured by section, joints marked",
+        description="Draw BODY from the front, the side and the top into a PNG, each section in its "
+                    "own colour, joints as black dots.")
+    show.add_argument("body", metavar="BODY",
+                      help="a shipped body name (see `poses list`), a body .npz, or a mesh file")
+    show.add_argument("--out", required=True, metavar="PNG", help="PNG file to write")
+    show.add_argument("--dpi", type=int, default=110, help="resolution of the picture (default: 110)")
+    show.set_defaults(func=_show)
+
+    gen = psub.add_parser(
+        "generate", help="generate a posed body with the anny body model (needs the 'bodies' extra)",
+        description="Generate a posed body with ground truth from a posture (joint angles) and a body "
+                    "shape (anny phenotype), both given as a library name or a YAML file. Needs the "
+                    "'bodies' extra (torch, anny); the first run builds anny's model, which takes a few "
+                    "minutes and writes ~800 MB to $ANNY_CACHE_DIR (default ~/.cache/anny).")
+    gen.add_argument("--pose", metavar="SPEC",
+                     help="posture: a name from poses/postures/ (e.g. standing) or a posture YAML path")
+    gen.add_argument("--shape", default="average_male", metavar="SPEC",
+                     help="body shape: a name from poses/shapes/ or a shape YAML path (default: average_male)")
+    gen.add_argument("--out", metavar="FILE",
+                     help="body .npz to write (with --library: the folder, default the shipped library)")
+    gen.add_argument("--name", help="body name stored in the file (default: the --out file stem)")
+    gen.add_argument("--max-edge", type=float, default=None, metavar="M",
+                     help="split edges longer than this, metres (default: 0.025)")
+    gen.add_argument("--library", action="store_true",
+                     help="regenerate every body of poses/shipped.yaml instead of one")
+    gen.set_defaults(func=_generate)
 
 
 def _list(args) -> int:
@@ -22,4 +53,46 @@ def _list(args) -> int:
         body = load_body(name)
         print(f"{name:<28} {body.height:>8.3f} {len(body.vertices):>9d}")
     print(f"{len(names)} bodies")
+    return 0
+
+
+def _show(args) -> int:
+    from .body import load_body
+    from .show import show
+
+    if args.dpi <= 0:
+        print(f"poses show: --dpi must be positive, got {args.dpi}", file=sys.stderr)
+        return 2
+    path = show(load_body(args.body), args.out, dpi=args.dpi)
+    print(path)
+    return 0
+
+
+def _generate(args) -> int:
+    from dataclasses import replace
+    from pathlib import Path
+
+    from .body import save_body
+    from .generate import GenerateParams, build_library, generate, load_posture, load_shape
+
+    params = GenerateParams()
+    if args.max_edge is not None:
+        if not args.max_edge > 0:
+            print(f"poses generate: --max-edge must be positive metres, got {args.max_edge}", file=sys.stderr)
+            return 2
+        params = replace(params, max_edge_m=args.max_edge)
+    if args.library:
+        for path in build_library(args.out, params=params):
+            print(path)
+        return 0
+    if not args.pose or not args.out:
+        print("poses generate: --pose and --out are needed (or --library)", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    if out.suffix.lower() != ".npz":
+        print(f"poses generate: --out {out} must end in .npz", file=sys.stderr)
+        return 2
+    posture, shape = load_posture(args.pose), load_shape(args.shape)  # user errors before the slow part
+    body = generate(posture, shape, params, name=args.name or out.stem)
+    print(save_body(body, out))
     return 0

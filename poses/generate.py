@@ -483,3 +483,44 @@ def regenerate(body: Body) -> Body:
     except KeyError as exc:
         raise BodyError(f"{body.source or body.name}: no stored generator parameter {exc}") from None
     return generate(posture, shape, params, name=body.name)
+
+
+#: The manifest of the shipped library: body name -> posture and shape names.
+SHIPPED = Path(__file__).resolve().parent / "shipped.yaml"
+
+
+def shipped() -> dict[str, dict]:
+    """The shipped library's manifest, ``{body name: {"posture": name, "shape": name}}``."""
+    return _read_yaml(SHIPPED, "library manifest")
+
+
+def build_library(out_dir=None, names=None, params: GenerateParams = GenerateParams()) -> list[Path]:
+    """Generate the shipped bodies (`shipped`) into ``out_dir`` (default: the library folder).
+
+    Parameters
+    ----------
+    out_dir : path, optional
+    names : list of str, optional
+        Only these bodies of the manifest.
+    params : GenerateParams
+
+    Returns
+    -------
+    paths : list of Path
+    """
+    from .body import save_body
+    from .library import DATA_DIR
+
+    out_dir = Path(out_dir) if out_dir is not None else DATA_DIR
+    manifest = shipped()
+    unknown = sorted(set(names or ()) - set(manifest))
+    if unknown:
+        raise BodyError(f"{SHIPPED}: no bodies named {', '.join(unknown)} (known: {', '.join(manifest)})")
+    paths = []
+    for i, (name, entry) in enumerate(manifest.items()):
+        if names and name not in names:
+            continue
+        print(f"[{i + 1}/{len(manifest)}] {name}", file=sys.stderr, flush=True)
+        body = generate(entry["posture"], entry["shape"], params, name=name)
+        paths.append(save_body(body, out_dir / f"{name}.npz"))
+    return paths
