@@ -90,6 +90,7 @@ class _HeadRays:
     normal: np.ndarray      # (m, 3) float32 unit normal of the side the camera sees
     cos_camera: np.ndarray  # (m,) float32 cosine between that normal and the ray back to the camera
     starts: np.ndarray      # (m, 3) float32 laser-ray origins: points + RAY_OFFSET along `normal`
+    normal_dot_start: np.ndarray  # (m,) float32, for the perspective laser's facing test
     n_rays: int             # camera rays cast
 
 
@@ -208,19 +209,21 @@ class Scanner:
         u = ((i + 0.5 - nw / 2) * res)[:, None] * right
         w = ((j + 0.5 - nh / 2) * res)[:, None] * up
         if perspective:
+            # unnormalised: Embree's distances are then in these units; only hits get normalised
             d32 = ((w + dist * axis).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
-            d32 /= np.sqrt(np.einsum("ij,ij->i", d32, d32))[:, None]
             o32 = np.broadcast_to(cam.astype(np.float32), d32.shape)
         else:
             start = float((rel @ axis).min()) - 0.01 * max(1.0, float(np.ptp(rel @ axis)))
             o32 = ((o_img + start * axis + w).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
             d32 = axis.astype(np.float32)[None, :]
         face, t = self.caster.first_hit(o32, d32)
+        n_cast = len(face)
         hit = np.flatnonzero(face >= 0)         # np.take: much faster than fancy indexing on (n, 3)
         face, t = face[hit], t[hit].astype(np.float64)[:, None]
         if perspective:
             d32 = np.take(d32, hit, axis=0)
             points = o32[0] + t * d32
+            d32 /= np.sqrt(np.einsum("ij,ij->i", d32, d32))[:, None]
         else:
             points = np.take(o32, hit, axis=0) + t * d32
         normal = np.take(self.face_normals32, face, axis=0)
@@ -229,7 +232,8 @@ class Scanner:
         np.negative(normal, out=normal, where=flip[:, None])
         cos_camera = np.abs(cos_camera)
         starts = (points + self.ray_offset * normal).astype(np.float32)
-        rays = _HeadRays(points, d32, face, normal, cos_camera, starts, len(t))
+        rays = _HeadRays(points, d32, face, normal, cos_camera, starts, np.einsum("ij,ij->i", normal, starts),
+                         n_cast)
         if len(self._camera_cache) >= CAMERA_CACHE_SIZE:
             self._camera_cache.pop(next(iter(self._camera_cache)))
         self._camera_cache[key] = (rays, in_field)
@@ -244,10 +248,10 @@ class Scanner:
         c_min = max(0.0, math.cos(math.radians(config.max_incidence_deg)))
         if config.projection == "perspective":
             # unnormalised rays from each point to the source: the source is at distance 1
-            source = o_img - config.camera_distance * axis + config.baseline * side
-            to_laser = source.astype(np.float32) - rays.starts
-            cos_laser = np.einsum("ij,ij->i", rays.normal, to_laser)
+            source = (o_img - config.camera_distance * axis + config.baseline * side).astype(np.float32)
+            cos_laser = rays.normal @ source - rays.normal_dot_start     # n . (source - start)
             if c_min > 0:
+                to_laser = source - rays.starts
                 cos_laser /= np.sqrt(np.einsum("ij,ij->i", to_laser, to_laser))
         else:
             to_laser = (-math.cos(theta) * axis + math.sin(theta) * side).astype(np.float32)
@@ -257,10 +261,10 @@ class Scanner:
             candidate &= rays.cos_camera > c_min
         idx = np.flatnonzero(candidate)
         starts = np.take(rays.starts, idx, axis=0)
-        if to_laser.ndim == 1:
-            blocked = self.caster.occluded(starts, to_laser[None, :])
+        if config.projection == "perspective":
+            blocked = self.caster.occluded(starts, source - starts, 1.0)
         else:
-            blocked = self.caster.occluded(starts, np.take(to_laser, idx, axis=0), 1.0)
+            blocked = self.caster.occluded(starts, to_laser[None, :])
         return idx[~blocked]
 
     # -- the scan ----------------------------------------------------------------------------
