@@ -91,7 +91,6 @@ class _HeadRays:
     cos_camera: np.ndarray  # (m,) float32 cosine between that normal and the ray back to the camera
     starts: np.ndarray      # (m, 3) float32 laser-ray origins: points + RAY_OFFSET along `normal`
     normal_dot_start: np.ndarray  # (m,) float32, for the perspective laser's facing test
-    n_rays: int             # camera rays cast
 
 
 def _as_body(body):
@@ -217,7 +216,6 @@ class Scanner:
             o32 = ((o_img + start * axis + w).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
             d32 = axis.astype(np.float32)[None, :]
         face, t = self.caster.first_hit(o32, d32)
-        n_cast = len(face)
         hit = np.flatnonzero(face >= 0)         # np.take: much faster than fancy indexing on (n, 3)
         face, t = face[hit], t[hit].astype(np.float64)[:, None]
         if perspective:
@@ -232,8 +230,7 @@ class Scanner:
         np.negative(normal, out=normal, where=flip[:, None])
         cos_camera = np.abs(cos_camera)
         starts = (points + self.ray_offset * normal).astype(np.float32)
-        rays = _HeadRays(points, d32, face, normal, cos_camera, starts, np.einsum("ij,ij->i", normal, starts),
-                         n_cast)
+        rays = _HeadRays(points, d32, face, normal, cos_camera, starts, np.einsum("ij,ij->i", normal, starts))
         if len(self._camera_cache) >= CAMERA_CACHE_SIZE:
             self._camera_cache.pop(next(iter(self._camera_cache)))
         self._camera_cache[key] = (rays, in_field)
@@ -299,15 +296,14 @@ class Scanner:
             config = config.replace(seed=int(seed))
         rays0 = self.caster.n_rays
         center = self._center(config)
-        heads, camera_rays = [], 0
+        heads = []
         covered = np.zeros(len(self.body.vertices), bool)
         for head in config.heads:
             rays, in_field = self._camera(head, config, center)
-            camera_rays += rays.n_rays
             covered |= in_field
             heads.append((rays, self._lit(rays, head, config, center)))
         where = self.body.source or self.body.name
-        if camera_rays == 0 or not covered.any():
+        if not covered.any():
             lo, hi = self.bounds
             z0 = min(h.height - h.field_height / 2 for h in config.heads)
             z1 = max(h.height + h.field_height / 2 for h in config.heads)

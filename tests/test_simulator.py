@@ -146,6 +146,20 @@ def test_laser_beside_the_camera_shades_the_side_of_the_ledge():
     assert x[band & (x > 0.2)].min() - 0.2 <= res + 1e-6                        # lit on the right
 
 
+def test_tilted_head_sees_the_floor_foreshortened():
+    """A head looking 30 degrees down sees a floor patch, foreshortened by sin(30 deg)."""
+    res, side = 0.01, 0.6
+    floor = trimesh.Trimesh([[-side / 2, -side / 2, 0.5], [side / 2, -side / 2, 0.5], [side / 2, side / 2, 0.5],
+                             [-side / 2, side / 2, 0.5]], [[0, 1, 2], [0, 2, 3]])
+    head = Head("down", tilt_deg=-30.0, height=0.5)
+    s = scan(floor, preset(resolution=res, k=1, heads=(head,)))
+    assert np.abs(s.points[:, 2] - 0.5).max() < 1e-6
+    assert np.allclose(s.view_dir, [0, -math.cos(math.pi / 6), math.sin(math.pi / 6)], atol=1e-6)
+    assert len(s) == pytest.approx(side * side * math.sin(math.pi / 6) / res ** 2, rel=0.03)
+    with pytest.raises(ScanError, match="no surface point"):
+        scan(floor, preset(resolution=res, heads=FRONT))   # a level camera sees the floor edge-on
+
+
 def test_perspective_points_see_their_pinhole(sphere):
     cfg = preset("scanner", noise_sigma=0.0, resolution=0.01)
     s = scan(sphere, cfg)
