@@ -34,6 +34,7 @@ import subprocess
 import sys
 import threading
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -405,10 +406,11 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
             t0 = time.perf_counter()
             sc = simulator.scan(body, cfg, seed=config.seed)
             scan_s = time.perf_counter() - t0
-            fit, fit_s, fit_mb, fit_error = None, 0.0, 0.0, None
+            fit, fit_s, fit_mb, fit_error, fit_warn = None, 0.0, 0.0, None, []
             if uses_recon:
                 try:
-                    with PeakMemory() as mem:
+                    with PeakMemory() as mem, warnings.catch_warnings(record=True) as fit_warn:
+                        warnings.simplefilter("always")
                         fit, fit_s = _estimate_fit(sc, _recon_params(dict(config.recon)))
                     fit_mb = mem.peak_mb
                 except Exception as exc:  # the recon methods of this scan fail with it
@@ -417,12 +419,17 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                 base = {"body": body.name, "method": method, "preset": preset, "k": float(k),
                         "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
                 t0 = time.perf_counter()
+                caught = list(fit_warn) if method in RECON_METHODS else []
                 try:
                     if method in RECON_METHODS and fit_error:
                         raise BenchError(f"posture estimation failed: {fit_error}")
-                    row = evaluate(body, sc, method, dict(config.recon) if method in RECON_METHODS else None,
-                                   metric_params=config.metric, fit=fit, fit_seconds=fit_s,
-                                   keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
+                    with warnings.catch_warnings(record=True) as more:
+                        warnings.simplefilter("always")
+                        row = evaluate(body, sc, method,
+                                       dict(config.recon) if method in RECON_METHODS else None,
+                                       metric_params=config.metric, fit=fit, fit_seconds=fit_s,
+                                       keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
+                    caught += more
                     if method in RECON_METHODS:
                         row["peak_memory_mb"] = max(row["peak_memory_mb"], fit_mb)
                     row = {**base, **row}
@@ -430,6 +437,7 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                     if isinstance(exc, (KeyboardInterrupt, MemoryError)):
                         raise
                     row = {**base, "status": "error", "error": f"{type(exc).__name__}: {exc}"}
+                row["warnings"] = "; ".join(dict.fromkeys(str(w.message) for w in caught)) or None
                 mesh = row.pop("_mesh", None)
                 out.append((row, mesh))
                 if verbose:
@@ -607,6 +615,11 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
                         tot[key] = tot.get(key, 0.0) + v
                 top = sorted(tot.items(), key=lambda kv: -kv[1])[:6]
                 md.append(f"- **{method}**: " + (", ".join(f"{k} {v:.0f}" for k, v in top) or "none"))
+    if "warnings" in table.columns and table["warnings"].notna().any():
+        w = table[table["warnings"].notna()]
+        md += ["", f"## Warnings ({len(w)} case(s))", ""]
+        md += [f"- {r['method']} / {r['body']} / {r['preset']} k={r['k']:g}: {r['warnings']}"
+               for _, r in w.head(40).iterrows()]
     failed = table[table["status"] != "ok"]
     if len(failed):
         md += ["", f"## Failed ({len(failed)})", ""]
@@ -633,8 +646,6 @@ def _pictures(meshes: dict, case, out: Path, progress) -> list:
     except ImportError as exc:
         _log(f"bodyscan bench: no pictures ({exc})", progress)
         return []
-    import warnings
-
     done = []
     body = case[0]
     for method in [m for m in METHODS if m in meshes]:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import sys
@@ -29,7 +28,6 @@ def register(sub) -> None:
     """Add ``bench`` and ``score`` to the ``bodyscan`` subparsers ``sub``."""
     p = sub.add_parser(
         "bench", help="the benchmark: scan every posture, reconstruct with every method, score",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
         description="The paper's experiment made numeric: every posture of the library, scanned with "
                     "the 'paper' preset at k = 1, 2, 3, reconstructed with proposed, simple and every "
                     "installed peer (poisson, poisson-trimmed, bpa, alpha, spsr), scored. Prints a "
@@ -39,9 +37,9 @@ def register(sub) -> None:
                    help="postures: library names or body files (default: every shipped posture)")
     p.add_argument("--presets", type=_csv, default=("paper",), metavar="P,Q",
                    help="scanner presets: paper (parallel, 10 mm) and/or scanner (perspective, 2 mm, "
-                        "1 mm noise)")
+                        "1 mm noise) (default paper)")
     p.add_argument("--k", type=_csv, default=("1", "2", "3"), metavar="1,2,3", dest="ks",
-                   help="laser angle indices: the laser is k * 15 degrees from the camera axis")
+                   help="laser angle indices: the laser is k * 15 degrees from the camera axis (default 1,2,3)")
     p.add_argument("--methods", type=_csv, default=(), metavar="M,N",
                    help="methods: proposed, simple, poisson, poisson-trimmed, bpa, alpha, spsr "
                         "(default: proposed, simple and every installed peer)")
@@ -56,9 +54,10 @@ def register(sub) -> None:
                    help="metric setting: spurious_angle_deg (30), bridging_distance_m (0.005), "
                         "n_samples (50000), seen_radius_m (0.015), seed (0), oriented (true), "
                         "backend (auto/open3d/numpy); repeatable")
-    p.add_argument("--seed", type=int, default=0, help="scan seed (noise, outliers, misalignment)")
+    p.add_argument("--seed", type=int, default=0, help="scan seed (noise, outliers, misalignment) (default 0)")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),
-                   help="postures run at once in worker processes (1: uncontended stage times)")
+                   help="postures run at once in worker processes; 1 gives uncontended stage times "
+                        "(default: 2, or 1 on a one-core machine)")
     p.add_argument("--out", default=None, metavar="DIR", help="report folder (default: reports/<run-id>)")
     p.add_argument("--no-pictures", action="store_true", help="skip the pictures")
     p.set_defaults(func=bench_command)
@@ -80,6 +79,59 @@ def register(sub) -> None:
                    help="metric setting (see bodyscan bench --help); repeatable")
     s.add_argument("--out", metavar="metrics.json", help="write the metrics here (default: print them)")
     s.set_defaults(func=score_command)
+    add_peer_methods(sub)
+
+
+def add_peer_methods(sub) -> None:
+    """Let ``bodyscan reconstruct --method`` run the peers too (poisson, bpa, ...).
+
+    `recon` imports nothing from `benchmarks`, so the peers are added here, after recon's command
+    is registered: the ``--method`` choices are extended and the handler wrapped.
+    """
+    from .peers import PEERS
+
+    parser = getattr(sub, "choices", {}).get("reconstruct")
+    if parser is None:
+        return
+    for action in parser._actions:
+        if "--method" in action.option_strings and action.choices is not None:
+            action.choices = tuple(action.choices) + tuple(m for m in PEERS if m not in action.choices)
+            action.help = (action.help or "") + "; peers (the peers extra, see benchmarks/peers.py): " \
+                + ", ".join(PEERS)
+    original = parser.get_default("func")
+
+    def run(args):
+        if getattr(args, "method", None) in PEERS:
+            return reconstruct_peer_command(args)
+        return original(args)
+
+    parser.set_defaults(func=run)
+
+
+def reconstruct_peer_command(args) -> int:
+    """``bodyscan reconstruct --method <peer>``: a peer's mesh of a cloud, written as PLY."""
+    import trimesh
+
+    from recon.cloud import read_cloud
+
+    from . import BenchError
+    from .peers import reconstruct_peer
+
+    for option in ("param", "fit", "preview"):
+        if getattr(args, option, None):
+            raise BenchError(f"--{option} is for the proposed and simple methods, not {args.method}")
+    out = Path(args.out)
+    if out.suffix.lower() != ".ply":
+        raise BenchError(f"--out {out}: the mesh is written as PLY; name it *.ply")
+    if not out.parent.exists():
+        raise BenchError(f"--out {out}: folder {out.parent} does not exist")
+    cloud = read_cloud(args.cloud)
+    print(f"reconstruct: {len(cloud.points)} points, method {args.method}", file=sys.stderr)
+    v, f, times = reconstruct_peer(args.method, cloud.points, cloud.view_dir)
+    trimesh.Trimesh(v, f, process=False).export(out)
+    t = ", ".join(f"{k} {x:.2f} s" for k, x in times.items())
+    print(f"reconstruct: {len(f)} triangles -> {out} ({t})", file=sys.stderr)
+    return 0
 
 
 def _metric_params(items):

@@ -163,3 +163,23 @@ def test_bench_rejects_bad_options():
         BenchConfig(bodies=("standing",), ks=(0,), methods=("simple",)).resolved()
     assert main(["bench", "--bodies", "no_such_body", "--no-peers"]) == 2
     assert set(METHODS) >= {"proposed", "simple", "poisson", "bpa", "spsr"}
+
+
+def test_reconstruct_command_runs_peers(standing_scan, tmp_path):
+    """`bodyscan reconstruct --method bpa` writes a peer's mesh, which `bodyscan score` scores."""
+    from benchmarks.peers import available_peers
+
+    if "bpa" not in available_peers():
+        pytest.skip("open3d is not installed")
+    import simulator
+
+    body, sc = standing_scan
+    cloud = simulator.write_cloud(sc, tmp_path / "cloud.ply")
+    mesh = tmp_path / "bpa.ply"
+    assert main(["reconstruct", str(cloud), "--method", "bpa", "--out", str(mesh)]) == 0
+    out = tmp_path / "m.json"
+    assert main(["score", str(mesh), "--body", "standing", "--cloud", str(cloud), "--out", str(out),
+                 "--metric", "n_samples=20000"]) == 0
+    got = json.loads(out.read_text())
+    assert got["precision@5mm"] > 0.9 and got["matched_vertex_fraction"] > 0.99  # BPA keeps the points
+    assert main(["reconstruct", str(cloud), "--method", "bpa", "--out", str(mesh), "--param", "t_d=0.3"]) == 2
