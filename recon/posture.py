@@ -9,8 +9,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    weighted n. To work for any posture we start from the cloud's centre of gravity but search the
    torso's axis over a hemisphere of directions and its roll about the axis
    (`match_torso_directions` x 6 rolls), score each on the volume (mean voxel weight inside the
-   column: n on contour, 1 inside, `match_empty_weight` outside), then refine the best few by
-   Nelder-Mead over translation and rotation.
+   column: n on contour, 1 inside, `match_empty_weight` outside, minus the mean weight of a ring
+   of samples beside the neck, which must be empty, minus `match_upright_prior` x (1 - cos tilt):
+   scanned people are mostly upright and a scanner knows its +z), then refine the best few by
+   Nelder-Mead over translation and rotation, and keep the one whose whole-body match scores best.
 3. Sections from the chest outwards: chest (about the chest joint), head (about the neck), then
    thighs and lower legs, then upper arms and forearms (the paper does the arms before the legs; we
    place the legs first because hanging hands reach down beside the thighs). Where the paper does not say how a limb's direction is
@@ -64,13 +66,18 @@ class FitParams:
     contour_weight: float = 2.0            # 2.3(1), 4.2: weight n of contour voxels, n = 2
     match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
     match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
-    match_max_adduction: float = 0.35      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
     match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
+    match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
+    match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
+                                           # each also with its roll from the legs (chosen)
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
     match_directions: int = 400            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 8                    # 2.3(2): proximal directions kept per limb chain (chosen)
     match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
-    match_rounds: int = 1                  # 2.1: matches with the size re-estimated in between (chosen)
+    match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen)
+    match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
+    match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
     fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
     fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
     fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
@@ -241,9 +248,12 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
     t = np.radians(np.r_[-40:41:20, 140:221:20])
     ring = np.column_stack([np.cos(t), np.sin(t), np.full(len(t), 0.5 + 0.06 * body.stature / L)])
 
+    lam = params.match_upright_prior
+
     def score(c, R):
         return float(_column_score(scorer, c, R.T[None], L, rad, tmpl)[0]
-                     - _column_score(scorer, c, R.T[None], L, rad, ring)[0])
+                     - _column_score(scorer, c, R.T[None], L, rad, ring)[0]
+                     - lam * (1.0 - abs(R[2, 2])))
 
     if starts is None:
         dirs = fibonacci_sphere(params.match_torso_directions, hemisphere=True)
@@ -257,7 +267,8 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
         cands = []
         for off in (-0.05, 0.0, 0.05):
             c = centroid + off * body.stature * Z
-            s = _column_score(scorer, c, frames, L, rad, tmpl) - _column_score(scorer, c, frames, L, rad, ring)
+            s = (_column_score(scorer, c, frames, L, rad, tmpl) - _column_score(scorer, c, frames, L, rad, ring)
+                 - lam * (1.0 - np.abs(frames[:, 2, 2])))
             cands += [(s[i], c[i], frames[i].T) for i in range(len(s))]
         cands.sort(key=lambda t: -t[0])
         starts, seen = [], []
@@ -267,7 +278,7 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
                 continue
             seen.append((c, R))
             starts.append((c, R))
-            if len(starts) == 4:
+            if len(starts) == 3:
                 break
     out = []
     for c0, R0 in starts:
@@ -275,7 +286,7 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
             return -score(c0 + x[:3], _rotvec(x[3:]) @ R0)
         simplex = np.vstack([np.zeros(6), np.diag([0.04, 0.04, 0.04, 0.15, 0.15, 0.15])])
         res = minimize(f, np.zeros(6), method="Nelder-Mead",
-                       options=dict(initial_simplex=simplex, maxfev=250, xatol=1e-3, fatol=1e-4))
+                       options=dict(initial_simplex=simplex, maxfev=150, xatol=1e-3, fatol=1e-4))
         out.append((-res.fun, c0 + res.x[:3], _rotvec(res.x[3:]) @ R0))
     out.sort(key=lambda t: -t[0])
     return out
@@ -303,7 +314,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
         w = scorer.lookup(pts)
         h = np.clip((pts - root) @ d1, 0.0, L1)
         inside = np.linalg.norm(pts - root - h[..., None] * d1, axis=-1) < r1[0] + r2[0]
-        return np.where(inside, np.minimum(w, 0.0), w).mean(axis=-1)
+        return np.where(inside, np.minimum(w, scorer.claimed), w).mean(axis=-1)
 
     order = np.argsort(-s1)
     cos_max = np.cos(np.radians(params.match_max_bend))
@@ -431,6 +442,51 @@ def _chain_extent(points, pose: _Pose, dist: str) -> float | None:
     return p.length + tip
 
 
+def _roll_from_legs(points, centre, R, body: StandardBody) -> np.ndarray:
+    """Turn the torso frame about its axis so that its x axis runs from one thigh to the other.
+
+    Just below the torso (either end: up is not known yet) the cloud splits into two legs; their
+    2-means centres give the left-right direction. Unchanged when no end shows two separate blobs.
+    """
+    ez = R[:, 2]
+    rel = points - centre
+    h = rel @ ez
+    lat = rel - np.outer(h, ez)
+    half = 0.5 * _torso_len(body)
+    best = None
+    for sgn in (-1.0, 1.0):
+        hh = sgn * h - half
+        sel = (hh > 0.02 * body.scale) & (hh < 0.12 * body.scale) & (np.linalg.norm(lat, axis=1) < 0.3)
+        q = lat[sel]
+        if len(q) < 40:
+            continue
+        # 2-means in the plane, started along the current x axis and its perpendicular
+        seps = []
+        for init in (R[:, 0], R[:, 1]):
+            lab = q @ init > np.median(q @ init)
+            for _ in range(8):
+                if lab.all() or not lab.any():
+                    break
+                a, b = q[lab].mean(0), q[~lab].mean(0)
+                lab = np.linalg.norm(q - a, axis=1) < np.linalg.norm(q - b, axis=1)
+            if lab.all() or not lab.any():
+                continue
+            a, b = q[lab].mean(0), q[~lab].mean(0)
+            spread = np.sqrt(np.mean(np.minimum(np.linalg.norm(q - a, axis=1), np.linalg.norm(q - b, axis=1)) ** 2))
+            seps.append((np.linalg.norm(a - b) / max(spread, 1e-3), a - b))
+        if seps:
+            ratio, d = max(seps, key=lambda t: t[0])
+            if ratio > 1.5 and (best is None or ratio > best[0]):
+                best = (ratio, d)
+    if best is None:
+        return R
+    x = best[1] - ez * (best[1] @ ez)
+    x = x / np.linalg.norm(x)
+    if x @ R[:, 0] < 0:
+        x = -x
+    return np.column_stack([x, np.cross(ez, x), ez])
+
+
 def _thick_core(vol: Volume) -> np.ndarray:
     """Centre (3,) of the thickest part of the volume (voxels deepest inside it): the torso."""
     from scipy import ndimage
@@ -460,10 +516,17 @@ def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
             if near.sum() > 50:
                 ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
                 if abs(R[2, 2]) > 0.8:
-                    body = standard_body(float(np.clip(ext, 0.8, 2.2)))
+                    # too short for its torso: seated, squatting or kneeling; the limbs tell later
+                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
                     cands = _match_torso(scorer, centroid, body, params, [(c, R)])
         best = None
-        for sc, c, R in cands[:1]:
+        trials = []
+        for sc, c, R in cands[:params.match_torso_candidates]:
+            trials.append((sc, c, R))
+            R2 = _roll_from_legs(points, c, R, body)
+            if abs(R2[:, 0] @ R[:, 0]) < np.cos(np.radians(20)):
+                trials.append((sc, c, R2))   # the legs suggest another roll: let the match decide
+        for sc, c, R in trials:
             # the scanner's +z is up: trust it unless the torso lies nearly horizontal
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
@@ -482,8 +545,10 @@ def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
                 ratios.append(e / body.limb_lengths(dist))
         if not ratios:
             break
-        s = float(np.clip(np.median(ratios), 0.45, 1.3))
-        body = standard_body(body.stature * s)
+        s = float(np.median(ratios))
+        if abs(s - 1.0) < params.match_resize_tolerance:
+            break
+        body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
     return pose
 
@@ -538,18 +603,43 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
     for _ in range(max(1, iterations)):
         base = cur
 
-        def make(x):
-            fr = base.frame
-            d = _tangent_dir(base.axis, x[2], x[3])
+        fr = base.frame
+        u0 = _perp(base.axis)
+        w0 = np.cross(base.axis, u0)
+        a, b = base.radii
+        L = base.length
+        cap0, cap1 = base.caps
+        c0, c1 = base.closed
+
+        def pose(x):
+            t = np.hypot(x[2], x[3])
+            d = base.axis * np.cos(t) + (u0 * x[2] + w0 * x[3]) * np.sinc(t / np.pi)
+            d = d / np.linalg.norm(d)
             start = base.start + x[0] * fr[0] + x[1] * fr[1]
             fx = fr[0] - d * (fr[0] @ d)
+            fx = fx / np.linalg.norm(fx)
             if elliptic:
-                fx = _unit(fx)
                 fx = fx * np.cos(x[4]) + np.cross(d, fx) * np.sin(x[4])
-            return base.replace(start=start, end=start + base.length * d, frame_x=fx)
+            return start, d, fx
+
+        def make(x):
+            start, d, fx = pose(x)
+            return base.replace(start=start, end=start + L * d, frame_x=fx)
 
         def resid(x):
-            return make(x).coords(points)[0]
+            # SectionShape.coords' r, inlined for speed (same formula)
+            start, d, fx = pose(x)
+            rel = points - start
+            X, Y, h = rel @ fx, rel @ np.cross(d, fx), rel @ d
+            e = np.where(h < 0, h, np.where(h > L, h - L, 0.0))
+            c = np.where(h < 0, cap0, cap1)
+            if not c0:
+                e = np.where(h < 0, 0.0, e)
+            if not c1:
+                e = np.where(h > L, 0.0, e)
+            q = np.sqrt((X / a) ** 2 + (Y / b) ** 2 + (e / c) ** 2)
+            n = np.sqrt(X ** 2 + Y ** 2 + e ** 2)
+            return np.where(q > 0, n * (1.0 - 1.0 / np.maximum(q, 1e-12)), -min(a, b))
 
         x0 = np.zeros(5 if elliptic else 4)
         lim = np.array([max_shift, max_shift, max_turn, max_turn, max_turn])[:len(x0)]
@@ -682,6 +772,19 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     return out
 
 
+def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:
+    """Slide the model along the torso axis so that the neck lies the standard head length below the
+    detected top of the head (the crown is the best-measured landmark along the spine)."""
+    h, w = secs["head"], secs["waist"]
+    if not h.closed[1]:
+        return secs
+    top = h.end + h.caps[1] * h.axis
+    neck = top - body.section_length("head") * h.axis
+    shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
+    move = shift * w.axis
+    return {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()}
+
+
 def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
     return s.replace(start=start, end=start + length * _unit(d))
 
@@ -748,10 +851,11 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray) -> dict:
         if dist in secs:
             q = secs[dist]
             j[b] = q.start
-            if q.closed[1]:
+            if q.closed[1] and dist.startswith("forearm"):
+                # the fingertips are seen: the wrist lies a hand length before them
                 full = q.length + q.caps[1]
-                j[c] = q.start + body.end_joint_fraction(dist) * full * q.axis
-            else:
+                j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
+            else:  # soles are rarely seen: the ankle lies a standard shank length below the knee
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
                 j[c] = q.start + seg * q.axis
     return {k: np.asarray(v, dtype=float) for k, v in j.items()}
@@ -802,6 +906,8 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     t0 = time.perf_counter()
     secs, resid, counts, _ = _fine(work, pose, params)
     times["fine"] = time.perf_counter() - t0
+
+    secs = _anchor_on_head_top(secs, pose.body, params)
 
     # front and back from the data: relabel left/right when the provisional front was the back
     sign = _front_sign(work, secs, pose.R)
