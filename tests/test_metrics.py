@@ -258,3 +258,49 @@ def test_empty_mesh_and_bad_input(sphere):
         score_mesh(sphere.vertices, sphere.faces + len(sphere.vertices), sphere)
     with pytest.raises(BenchError):
         MetricParams(spurious_angle_deg=0)
+
+
+@pytest.fixture(scope="module")
+def standing():
+    from poses.body import load_body
+    from poses.library import list_bodies
+
+    if "standing" not in list_bodies():
+        pytest.skip("the pose library has no standing body")
+    body = load_body("standing")
+    return body, GroundTruth.from_body(body, PARAMS)
+
+
+def test_standing_body_against_itself(standing):
+    body, truth = standing
+    row = score_mesh(body.vertices, body.faces, truth)
+    assert row["spurious_count"] == 0 and row["bridging_area_fraction"] == 0
+    assert row["fscore_full@5mm"] == 1 and row["chamfer_l1_mm"] < 1e-3
+
+
+def test_planted_quad_in_the_standing_body_s_left_armpit(standing):
+    """A quad in the plane y = 0 from the chest's side to the left arm's inner side, 5 cm tall:
+    exactly its area is in the air, between chest and upper_arm_l."""
+    body, truth = standing
+    mesh = truth.mesh
+    corners = []
+    for z in (1.20, 1.25):
+        hits, _, tri = mesh.ray.intersects_location([[0.0, 0.0, z]], [[1.0, 0.0, 0.0]])
+        order = np.argsort(hits[:, 0])
+        assert [_section_of(truth, tri[order[i]]) for i in (0, 1)] == ["chest", "upper_arm_l"]
+        corners.append((hits[order[0]], hits[order[1]]))   # torso side, arm side
+    (t1, a1), (t2, a2) = corners
+    n = len(body.vertices)
+    v = np.concatenate([body.vertices, [t1, a1, a2, t2]])
+    f = np.concatenate([body.faces, [[n, n + 1, n + 2], [n, n + 2, n + 3]]])
+    quad_area = face_normals(v, f[-2:])[1].sum()
+    row = score_mesh(v, f, truth)
+    assert row["bridging_area_cm2"] == pytest.approx(quad_area * 1e4, rel=1e-9)
+    assert list(json.loads(row["bridging_pairs"])) == ["chest+upper_arm_l"]
+    assert 30 < quad_area * 1e4 < 60   # a 5-8 cm wide gap, 5 cm tall
+
+
+def _section_of(truth, face):
+    from benchmarks.metrics import SECTIONS
+
+    return SECTIONS[truth.face_section[face]]
