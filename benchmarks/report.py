@@ -52,16 +52,18 @@ SHOWN = {
     "spurious_area_fraction": ("spurious %", 100, 2),
     "bridging_area_fraction": ("bridging %", 100, 2),
     "bridging_area_cm2": ("bridging cm²", 1, 1),
-    "precision@5mm": ("precision@5mm", 1, 3),
-    "recall_full@5mm": ("recall full@5mm", 1, 3),
-    "recall_seen@5mm": ("recall seen@5mm", 1, 3),
     "fscore_seen@5mm": ("F seen@5mm", 1, 3),
+    "recall_full@5mm": ("recall full@5mm", 1, 3),
     "chamfer_l1_mm": ("Chamfer-L1 mm", 1, 2),
-    "normal_consistency": ("normal cons.", 1, 3),
     "section_accuracy": ("section acc.", 1, 3),
     "joint_error_median_m": ("joint err. mm", 1000, 1),
     "time_total_s": ("time s", 1, 2),
 }
+#: Columns of the best-settings table.
+SHOWN_SHORT = ("spurious_area_fraction", "bridging_area_fraction", "fscore_seen@5mm",
+               "section_accuracy")
+#: Derived column: seconds of a job after the stages its scan shares (scan, posture fit).
+OWN_TIME = "time_own_s"
 
 #: Metrics where a larger value is better (the rest: smaller is better).
 HIGHER_IS_BETTER = {"precision@5mm", "recall_full@5mm", "recall_seen@5mm", "fscore_seen@5mm",
@@ -290,6 +292,15 @@ def build_report(sweep_dir, out, *, pictures: bool = True, gate: GateResult | No
         doc.table(["method", "posture", "settings", "error"], rows,
                   "Tracebacks are in the results table (column traceback)."
                   + (" First 50 shown." if len(failed) > 50 else ""))
+    if "warnings" in table.columns and table["warnings"].notna().any():
+        counts: dict = {}
+        for text in table["warnings"].dropna():
+            for line in set(str(text).splitlines()):
+                counts[line] = counts.get(line, 0) + 1
+        rows = sorted(counts.items(), key=lambda kv: -kv[1])[:20]
+        doc.heading("Warnings")
+        doc.table(["jobs", "warning"], [[n, w[:200]] for w, n in rows],
+                  "Warnings raised while running the jobs (column warnings of the results).")
     doc.heading("Provenance")
     doc.pre(json.dumps({k: meta.get(k) for k in ("sweep", "runner", "git_commit", "versions",
                                                   "python", "host", "runs")},
@@ -338,6 +349,7 @@ def _best_settings(doc, ok, metrics):
     if not need:
         return
     doc.heading("Best reconstruction settings")
+    metrics = [m for m in metrics if m in SHOWN_SHORT]
     rows = []
     for method, group in ok.groupby("method", sort=True):
         means = group.groupby("recon_json")[metrics].mean()
@@ -365,6 +377,9 @@ def _figures(doc, ok, pd):
     from matplotlib.figure import Figure
 
     methods = sorted(ok["method"].unique())
+    if "time_total_s" in ok.columns:   # the job's own time, without the shared fit
+        ok[OWN_TIME] = ok["time_total_s"] - ok.get("time_fit_s", 0.0).fillna(0.0) \
+            if "time_fit_s" in ok.columns else ok["time_total_s"]
     area = [m for m in ("spurious_area_fraction", "bridging_area_fraction") if m in ok.columns]
     params = _param_columns(ok)
     mesh_axis = None
@@ -402,7 +417,7 @@ def _figures(doc, ok, pd):
                       "(mean over postures and other settings)")
     # curves over every other swept parameter (mesh size first)
     curve_metrics = [m for m in ("spurious_area_fraction", "bridging_area_fraction",
-                                 "fscore_seen@5mm", "time_total_s") if m in ok.columns]
+                                 "fscore_seen@5mm", OWN_TIME) if m in ok.columns]
     axes = ([mesh_axis] if mesh_axis else []) + params
     if curve_metrics and axes:
         doc.heading("Metrics over the swept parameters")
@@ -410,7 +425,7 @@ def _figures(doc, ok, pd):
         fig = Figure(figsize=(3.6 * len(curve_metrics), 3.2), layout="constrained")
         for i, metric in enumerate(curve_metrics):
             ax = fig.add_subplot(1, len(curve_metrics), i + 1)
-            _, scale, _ = SHOWN[metric]
+            _, scale, _ = SHOWN.get(metric, ("", 1, 2))
             for method in methods:
                 group = ok[ok["method"] == method]
                 stats = group.groupby(axis)[metric].agg(["mean", "min", "max"])
@@ -420,7 +435,8 @@ def _figures(doc, ok, pd):
                 ax.fill_between(x, stats["min"] * scale, stats["max"] * scale, alpha=0.15)
                 ax.set_xticks(x, [_tick(v) for v in stats.index])
             ax.set_xlabel(axis.split(".", 1)[-1])
-            ax.set_title(SHOWN[metric][0])
+            ax.set_title("reconstruction s (fit excluded)" if metric == OWN_TIME
+                         else SHOWN[metric][0])
             ax.grid(alpha=0.3)
         fig.axes[0].legend(fontsize=8)
         doc.image(f"curve_{_safe(axis)}.png", _png(fig),

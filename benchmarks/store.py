@@ -5,6 +5,7 @@ Layout of a sweep folder ``DIR``::
     DIR/sweep.yaml           the sweep file of the latest run (a copy)
     DIR/meta.json            run metadata: versions, git commit, engine, start times
     DIR/parts/<job>.parquet  one row per finished job (metrics, or the error and its traceback)
+    DIR/results.parquet      all parts in one table: a cache rebuilt from the parts (safe to delete)
     DIR/meshes/<job>.npz     reconstructed meshes kept for pictures (see `ResultStore.put_mesh`)
 
 Every file is written to a temporary name in the same folder, flushed to disk, then renamed over
@@ -15,6 +16,11 @@ restarted sweep skips exactly the jobs whose parts exist. Temporary files left b
 
 Job parts are written by the one process that drives the sweep, as results arrive from the engine,
 so workers (local processes or a Dask cluster) need no shared file system.
+
+Reading hundreds of one-row Parquet files is slow (milliseconds each), so `ResultStore.read` keeps
+``results.parquet``: the union of the parts it has read, each row tagged with its part's size and
+modification time. A later read takes the rows whose parts are unchanged from it and reads only
+new or rewritten parts. The parts stay the truth; the cache only saves time.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ import numpy as np
 BASE_COLUMNS = ("job_id", "scan_id", "body", "seed", "method", "status", "error", "traceback",
                 "wall_s", "worker", "finished_at")
 
+_SIG = "_part_signature"   # column of results.parquet: the part's "size:mtime_ns"
 _JOB_ID = re.compile(r"^[0-9a-zA-Z_-]{1,128}$")
 
 
@@ -117,39 +124,81 @@ class ResultStore:
         succeeded)."""
         if not self.parts.is_dir():
             return set()
-        ids = {p.stem for p in self._part_paths()}
+        ids = set(self._listing())
         if include_failed or not ids:
             return ids
         table = self.read(columns=["job_id", "status"])
         return set(table.loc[table["status"] == "ok", "job_id"])
 
-    def read(self, columns=None):
+    def read(self, columns=None, *, compact: bool = True):
         """All rows as a `pandas.DataFrame` (columns are the union over parts; missing is NaN).
+
+        Parameters
+        ----------
+        columns : list of str, optional
+            Keep only these columns (those that exist).
+        compact : bool
+            Refresh ``results.parquet`` when parts were read that it did not hold.
 
         Raises
         ------
         FileNotFoundError
             ``DIR`` holds no results.
         """
-        import pandas as pd
         import pyarrow as pa
         import pyarrow.parquet as pq
 
-        paths = self._part_paths()
-        if not paths:
+        listing = self._listing()
+        if not listing:
             raise FileNotFoundError(f"{self.root}: no sweep results here (expected "
                                     f"{self.parts}/*.parquet; run `bodyscan sweep` first)")
-        tables = [pq.read_table(p) for p in paths]
+        tables, have = [], set()
+        cached = self._read_cache()
+        if cached is not None:
+            ids = cached.column("job_id").to_pylist()
+            sigs = cached.column(_SIG).to_pylist()
+            keep = [listing.get(i) == sig for i, sig in zip(ids, sigs)]
+            cached = cached.filter(pa.array(keep))
+            have = {i for i, k in zip(ids, keep) if k}
+            tables.append(cached)
+        new = [stem for stem in listing if stem not in have]
+        for stem in new:
+            table = pq.ParquetFile(self.parts / f"{stem}.parquet").read()
+            tables.append(table.append_column(_SIG, pa.array([listing[stem]], pa.string())))
         table = pa.concat_tables(tables, promote_options="permissive")
-        frame = table.to_pandas()
+        if compact and (new or len(table) != (cached.num_rows if cached is not None else -1)):
+            try:
+                _atomic_write(self.root / "results.parquet",
+                              lambda path: pq.write_table(table, path))
+            except OSError:      # a read-only folder: read without the cache
+                pass
+        frame = table.drop_columns([_SIG]).to_pandas()
         if columns is not None:
             frame = frame[[c for c in columns if c in frame.columns]]
         return frame.sort_values("job_id", kind="stable").reset_index(drop=True) \
             if "job_id" in frame.columns else frame
 
-    def _part_paths(self) -> list[Path]:
-        """Finished parts (temporary ``.tmp-*`` files are not parts)."""
-        return sorted(self.parts.glob("[!.]*.parquet")) if self.parts.is_dir() else []
+    def _listing(self) -> dict:
+        """{job id: "size:mtime_ns"} of the finished parts."""
+        if not self.parts.is_dir():
+            return {}
+        out = {}
+        with os.scandir(self.parts) as entries:
+            for entry in entries:
+                if entry.name.endswith(".parquet") and not entry.name.startswith("."):
+                    st = entry.stat()
+                    out[entry.name[:-len(".parquet")]] = f"{st.st_size}:{st.st_mtime_ns}"
+        return out
+
+    def _read_cache(self):
+        import pyarrow.parquet as pq
+
+        path = self.root / "results.parquet"
+        try:
+            table = pq.ParquetFile(path).read()
+        except (OSError, ValueError):   # missing or damaged: rebuilt from the parts
+            return None
+        return table if {_SIG, "job_id"} <= set(table.column_names) else None
 
     def mesh_ids(self) -> set[str]:
         """Ids of the jobs whose meshes are kept."""

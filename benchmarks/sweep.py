@@ -52,6 +52,7 @@ import socket
 import sys
 import time
 import traceback
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -60,6 +61,8 @@ from .store import ResultStore
 
 #: The runner used when a sweep file names none.
 DEFAULT_RUNNER = "benchmarks.sweep"
+#: Results between two refreshes of the store's one-file table (reading parts costs milliseconds).
+COMPACT_EVERY = 100
 #: Top-level keys of a sweep file.
 SWEEP_KEYS = ("name", "description", "bodies", "seeds", "methods", "scanner", "recon", "runner",
               "keep_meshes")
@@ -329,6 +332,8 @@ def run_sweep(sweep: Sweep, out, *, scheduler: str | None = None, workers: int |
             raise
         engine.close()
     meter.finish()
+    if todo:
+        store.read(columns=["job_id"])            # refresh results.parquet
     return SweepSummary(total=len(jobs), skipped=len(jobs) - len(todo), ok=meter.ok,
                         failed=meter.failed, seconds=time.perf_counter() - start,
                         scans=len(groups))
@@ -364,33 +369,58 @@ def _drive(engine, sweep: Sweep, groups: dict, store: ResultStore, meter, keeper
             if mesh is not None:
                 keeper.offer(what, row, mesh)
             meter.update(row["status"] == "ok")
+            if (meter.ok + meter.failed) % COMPACT_EVERY == 0:
+                store.read(columns=["job_id"])    # refresh results.parquet (see store)
 
 
 def _scan_task(runner: str, body: str, scanner: dict, seed: int):
     """Worker side: simulate one scan; a failure is returned (not raised) for its jobs to report."""
-    try:
-        return _runner(runner).scan(body, dict(scanner), int(seed))
-    except Exception as exc:
-        return _Failed(f"scan failed: {type(exc).__name__}: {exc}",
-                       "".join(traceback.format_exception(exc)))
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            scanned = _runner(runner).scan(body, dict(scanner), int(seed))
+        except Exception as exc:
+            scanned = _Failed(f"scan failed: {type(exc).__name__}: {exc}",
+                              "".join(traceback.format_exception(exc)))
+    return _Scanned(scanned, _warning_text(caught))
 
 
 def _job_task(runner: str, scanned, method: str, recon: dict) -> dict:
-    """Worker side: one job; returns the metrics (status ok) or the error and its traceback."""
+    """Worker side: one job; returns the metrics (status ok) or the error and its traceback.
+
+    Warnings (of the scan and of the job) go into the row's ``warnings`` column, not to stderr."""
     started = time.perf_counter()
     info = {"worker": f"{socket.gethostname()}:{os.getpid()}"}
-    if isinstance(scanned, _Failed):
-        return {"status": "error", "error": scanned.error, "traceback": scanned.traceback,
+    if isinstance(scanned.value, _Failed):
+        return {"status": "error", "error": scanned.value.error,
+                "traceback": scanned.value.traceback, "warnings": scanned.warnings,
                 "wall_s": 0.0, **info, "finished_at": time.time()}
-    try:
-        metrics = dict(_runner(runner).evaluate(scanned, method, dict(recon)))
-        status = {"status": "ok", "error": None, "traceback": None}
-    except Exception as exc:
-        metrics = {}
-        status = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
-                  "traceback": "".join(traceback.format_exception(exc))}
-    return {**metrics, **status, "wall_s": time.perf_counter() - started, **info,
-            "finished_at": time.time()}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        try:
+            metrics = dict(_runner(runner).evaluate(scanned.value, method, dict(recon)))
+            status = {"status": "ok", "error": None, "traceback": None}
+        except Exception as exc:
+            metrics = {}
+            status = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                      "traceback": "".join(traceback.format_exception(exc))}
+    text = "\n".join(t for t in (scanned.warnings, _warning_text(caught)) if t) or None
+    return {**metrics, **status, "warnings": text, "wall_s": time.perf_counter() - started,
+            **info, "finished_at": time.time()}
+
+
+def _warning_text(caught) -> str | None:
+    """Distinct warning messages, one per line (None when there were none)."""
+    lines = dict.fromkeys(f"{w.category.__name__}: {w.message}" for w in caught)
+    return "\n".join(lines) or None
+
+
+@dataclass(frozen=True)
+class _Scanned:
+    """A scan stage's result as the engine carries it: the runner's value and its warnings."""
+
+    value: object
+    warnings: str | None
 
 
 @dataclass(frozen=True)

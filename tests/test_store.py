@@ -82,3 +82,27 @@ def test_bad_job_id_is_rejected(tmp_path):
     store = ResultStore(tmp_path).open_for_writing()
     with pytest.raises(ValueError, match="job id"):
         store.put({"job_id": "../escape", "status": "ok"})
+
+
+def test_one_file_table_is_a_cache_of_the_parts(tmp_path):
+    store = ResultStore(tmp_path).open_for_writing()
+    for i in range(5):
+        store.put({"job_id": f"j{i}", "status": "ok", "x": float(i)})
+    first = store.read()
+    cache = tmp_path / "results.parquet"
+    assert cache.is_file() and pq.read_table(cache).num_rows == 5
+    # a new part and a rewritten part are picked up; the rest comes from the cache
+    store.put({"job_id": "j5", "status": "ok", "x": 5.0})
+    os.utime(store.parts / "j0.parquet", ns=(1, 1))      # an older part ...
+    store.put({"job_id": "j1", "status": "error", "error": "redone"})   # ... and a rewritten one
+    table = store.read().set_index("job_id")
+    assert len(table) == 6 and table.loc["j1", "status"] == "error" and table.loc["j5", "x"] == 5.0
+    assert table.loc["j0", "x"] == 0.0
+    assert pq.read_table(cache).num_rows == 6
+    # the cache is only a cache: damaged or deleted, the parts give the same table
+    cache.write_bytes(b"not parquet")
+    pd.testing.assert_frame_equal(store.read(), table.reset_index())
+    cache.unlink()
+    pd.testing.assert_frame_equal(store.read(compact=False), table.reset_index())
+    assert not cache.exists()
+    assert len(first) == 5

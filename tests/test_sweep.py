@@ -24,7 +24,7 @@ from benchmarks.sweep import expand_grid, load_sweep, run_sweep
 
 TOY_RUNNER = textwrap.dedent('''
     """A toy runner: metrics are known functions of the parameters; a scan log counts scans."""
-    import os, time, uuid
+    import os, time, uuid, warnings
     from pathlib import Path
 
     def scan(body, scanner, seed):
@@ -40,6 +40,8 @@ TOY_RUNNER = textwrap.dedent('''
         time.sleep(float(recon.get("sleep", 0)))
         if recon.get("t_d") == 0.666:
             raise ValueError("planted failure")
+        if recon.get("t_d") == 0.3:
+            warnings.warn("toy warning")
         return {"spurious_area_fraction": recon["t_d"] * scanned["k"],
                 "bridging_area_fraction": 0.01 * scanned["seed"] + (method == "m2"),
                 "scan_pid": scanned["pid"], "eval_pid": os.getpid()}
@@ -162,6 +164,11 @@ def test_local_sweep_stores_every_job_and_scans_once_per_group(tmp_path, toy, ca
     assert len(broken) == 2 * 2 * 3 and summary.failed == len(planted) + len(broken)
     err = capsys.readouterr().err
     assert "36 jobs, 0 already stored, 36 to run" in err and "ETA" in err and "failed" in err
+    # warnings of the jobs are kept in their rows, not printed over the progress
+    assert "toy warning" not in err
+    warned = ok["recon.t_d"] == 0.3
+    assert ok.loc[warned, "warnings"].str.contains("UserWarning: toy warning").all()
+    assert ok.loc[~warned, "warnings"].isna().all()
 
 
 def test_restart_skips_finished_jobs_and_retry_reruns_failures(tmp_path, toy):
