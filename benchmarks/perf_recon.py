@@ -4,6 +4,7 @@ Usage::
 
     python -m benchmarks.perf_recon [--body standing] [--dense-resolution 0.0014] [--repeat 3]
                                     [--oracle] [--method proposed]
+    python -m benchmarks.perf_recon --sweep-tn [--bodies a,b,...] [--factors 0,0.25,...] [--oracle]
 
 Prints, per scan, the number of points and the best-of-``repeat`` seconds of every stage (the fit's
 stages prefixed ``fit_``, then ``coords``, ``cluster``, ``surface``, ``total``), and the process's
@@ -12,6 +13,10 @@ total <= 2 s on a `paper` scan, <= 15 s on a scan of about 600 thousand points. 
 posture estimation (the ground-truth posture of `benchmarks.oracle`), to time clustering and
 surfaces alone. The dense scan is the `paper` preset at ``--dense-resolution`` metres (1.4 mm gives
 about 600 thousand points on the standing body with the paper's two heads).
+
+``--sweep-tn`` instead reconstructs `paper` scans of several bodies for each T_n factor and prints
+the mean section accuracy, spurious area fraction and bridging area fraction (benchmarks.metrics),
+the way the default of ``ClusterParams.t_n_factor`` was chosen.
 """
 
 from __future__ import annotations
@@ -39,6 +44,43 @@ def time_scan(points, view_dir, method, fit, repeat):
     return best, rec
 
 
+def sweep_tn(bodies, factors, oracle: bool) -> None:
+    """Print section accuracy / spurious / bridging per T_n factor, averaged over ``bodies``."""
+    import numpy as np
+
+    from poses import load_body
+    from recon import ReconParams, estimate_posture, reconstruct
+    from simulator.config import preset
+    from simulator.scan import scan
+
+    from .metrics import GroundTruth, MetricParams, bridging, section_accuracy, spurious
+    from .oracle import fit_from_body
+
+    rows = {f: [] for f in factors}
+    for name in bodies:
+        body = load_body(name)
+        s = scan(body, preset("paper"))
+        truth = GroundTruth.from_body(body, MetricParams(n_samples=2000))
+        fit = fit_from_body(body) if oracle else estimate_posture(s.points, view_dir=s.view_dir)
+        for f in factors:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                rec = reconstruct(s.points, "proposed", ReconParams.from_overrides({"t_n_factor": f}),
+                                  view_dir=s.view_dir, fit=fit)
+            tf = s.gt_face[rec.faces]
+            acc = section_accuracy(rec.point_sections, s.gt_section)["section_accuracy"]
+            sp = spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"]
+            br = bridging(rec.vertices, rec.faces, tf, truth, truth.params)["bridging_area_fraction"]
+            rows[f].append((acc, sp, br))
+            print(f"{name:>18s} t_n_factor {f:6.3g}: accuracy {acc:.4f} spurious {sp:.4f} "
+                  f"bridging {br:.4f}", file=sys.stderr)
+    print(f"{'t_n_factor':>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  (means over "
+          f"{len(bodies)} bodies, {'oracle' if oracle else 'estimated'} posture)")
+    for f in factors:
+        a, sp, br = np.mean(rows[f], axis=0)
+        print(f"{f:10.3g} {a:9.4f} {sp:9.4f} {br:9.4f}")
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--body", default="standing", help="library body (default: standing)")
@@ -47,7 +89,15 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="runs per scan, the best is shown (default: 3)")
     ap.add_argument("--oracle", action="store_true", help="use the ground-truth posture (no fit)")
     ap.add_argument("--method", default="proposed", choices=("proposed", "simple"))
+    ap.add_argument("--sweep-tn", action="store_true", help="sweep the T_n factor instead of timing")
+    ap.add_argument("--bodies", default="arms_close,hands_on_hips,arm_across,seated,squat,standing",
+                    help="bodies of --sweep-tn, comma-separated")
+    ap.add_argument("--factors", default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
+                    help="T_n factors of --sweep-tn, comma-separated (1000: always split)")
     args = ap.parse_args(argv)
+    if args.sweep_tn:
+        sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle)
+        return 0
 
     from poses import load_body
     from simulator.config import preset

@@ -168,10 +168,12 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
     In each (theta, h) cell of each section, the r of the section's members is split by Otsu's
     threshold unless the cell is single-peaked (more than T_n points near the threshold). In a
     two-peak cell the larger-r peak "represents the surface of another body section": its points
-    leave this section, but only those that are also members of a section that does not meet
-    this one at a joint (paper silent). So a point never leaves its only section (the paper's
-    proviso that two peaks may come from noise), and the overlap of adjacent sections, whose
-    surfaces are continuous across the joint, is left to the joint rule.
+    leave this section, but only those that are also members of another section, and not at the
+    joint of that section with this one (paper silent; with ``params.refine_adjacent`` False, only
+    sections that do not meet this one at any joint count). So a point never leaves its only section
+    (the paper's proviso that two peaks may come from noise), and the overlap of adjacent sections
+    at their joint, where the surfaces are continuous, is left to the joint rule (an arm against
+    the chest below the shoulder is still split off).
 
     Parameters
     ----------
@@ -204,6 +206,12 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
         thr, split = otsu_cells(cell, rr, n_cells, bins=params.otsu_bins, near_band=params.near_band,
                                 t_n_factor=params.t_n_factor, min_points=params.min_cell_points)
         elsewhere = (out[idx][:, apart[j]]).any(axis=1)
+        for (p, d) in ADJACENT if params.refine_adjacent else ():  # adjacent, away from the joint
+            if name not in (p, d) or p not in fit.sections or d not in fit.sections:
+                continue
+            k = SECTIONS.index(d if name == p else p)
+            away = ~(h[idx, SECTIONS.index(d)] < params.joint_reach * fit.sections[d].width)
+            elsewhere |= out[idx, k] & away
         drop = split[cell] & (rr >= thr[cell]) & elsewhere
         out[idx[drop], j] = False
     return out

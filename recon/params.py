@@ -29,6 +29,9 @@ class ClusterParams:
         factor is lost in the text). A cell is single-peaked, and kept whole, when more than T_n
         points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep over the
         shipped postures (see ``benchmarks/perf_recon.py --sweep-tn``).
+    refine_adjacent : bool
+        Refinement may also split off points claimed by an adjacent section away from their
+        joint (an arm against the chest below the shoulder); False: only non-adjacent sections.
     otsu_bins : int
         Bins of each cell's histogram of r, spanning that cell's r range (paper silent).
     near_band : float
@@ -64,6 +67,7 @@ class ClusterParams:
     mesh_theta: int = 10            # paper 4.2
     mesh_h: int = 10                # paper 4.2
     t_n_factor: float = 0.5         # paper 4.2: value lost; chosen by sweep
+    refine_adjacent: bool = False   # paper silent
     otsu_bins: int = 16             # paper silent
     near_band: float = 1.0          # paper silent, bin widths
     min_cell_points: int = 12       # paper silent
