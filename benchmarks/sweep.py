@@ -53,6 +53,7 @@ import sys
 import time
 import traceback
 import warnings
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -275,6 +276,7 @@ class SweepSummary:
     failed: int
     seconds: float
     scans: int
+    failed_total: int = 0    # jobs of the sweep whose stored result is an error, this run's or older
 
     @property
     def remaining(self) -> int:
@@ -327,50 +329,77 @@ def run_sweep(sweep: Sweep, out, *, scheduler: str | None = None, workers: int |
         engine = _DaskEngine(scheduler) if scheduler else _LocalEngine(workers, len(groups))
         try:
             _drive(engine, sweep, groups, store, meter, keeper)
+        except BrokenProcessPool:
+            engine.close(abort=True)
+            raise BenchError(
+                f"a worker process died (a crash in native code, or out of memory); the jobs it "
+                f"may have been running are stored as failed, every finished job is stored in "
+                f"{out}: run the same command again to go on") from None
         except BaseException:
             engine.close(abort=True)
             raise
         engine.close()
     meter.finish()
-    if todo:
-        store.read(columns=["job_id"])            # refresh results.parquet
+    ids = {j.job_id for j in jobs}
+    failed_total = len(ids & (store.finished() - store.finished(include_failed=False)))
     return SweepSummary(total=len(jobs), skipped=len(jobs) - len(todo), ok=meter.ok,
                         failed=meter.failed, seconds=time.perf_counter() - start,
-                        scans=len(groups))
+                        scans=len(groups), failed_total=failed_total)
 
 
 def _drive(engine, sweep: Sweep, groups: dict, store: ResultStore, meter, keeper) -> None:
     """Submit one scan task per group; when a scan is ready, submit its jobs; store each result."""
-    pending: dict = {}
+    pending: dict = {}    # future -> ("scan", scan_id) or ("job", Job), in submission order
+
+    def store_row(job: Job, result: dict) -> None:
+        row = {**job.row(), **result}
+        mesh = row.pop("_mesh", None)
+        store.put(row)
+        if mesh is not None:
+            keeper.offer(job, row, mesh)
+        meter.update(row["status"] == "ok")
+        if (meter.ok + meter.failed) % COMPACT_EVERY == 0:
+            store.read(columns=["job_id"])    # refresh results.parquet (see store)
+
     for scan_id, group in groups.items():
         first = group[0]
         body_path = sweep.body_paths.get(first.body, first.body)
         future = engine.submit(_scan_task, sweep.runner, body_path, first.scanner, first.seed,
                                key=f"scan-{scan_id}")
         pending[future] = ("scan", scan_id)
-    while pending:
-        for future in engine.wait(list(pending)):
-            kind, what = pending.pop(future)
-            if kind == "scan":
-                scanned = engine.result_ref(future)
-                for job in groups[what]:
-                    f = engine.submit(_job_task, sweep.runner, scanned, job.method, job.recon,
-                                      key=f"job-{job.job_id}")
-                    pending[f] = ("job", job)
-                continue
-            try:
-                result = future.result()
-            except BaseException as exc:  # the engine lost the task (a worker died)
-                result = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
-                          "traceback": "".join(traceback.format_exception(exc))}
-            row = {**what.row(), **result}
-            mesh = row.pop("_mesh", None)
-            store.put(row)
-            if mesh is not None:
-                keeper.offer(what, row, mesh)
-            meter.update(row["status"] == "ok")
-            if (meter.ok + meter.failed) % COMPACT_EVERY == 0:
-                store.read(columns=["job_id"])    # refresh results.parquet (see store)
+    try:
+        while pending:
+            for future in engine.wait(list(pending)):
+                kind, what = pending[future]
+                if kind == "scan":
+                    scanned = engine.result_ref(future)
+                    del pending[future]
+                    for job in groups[what]:
+                        f = engine.submit(_job_task, sweep.runner, scanned, job.method,
+                                          job.recon, key=f"job-{job.job_id}")
+                        pending[f] = ("job", job)
+                    continue
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    raise
+                except Exception as exc:  # the engine lost the task (e.g. Dask's KilledWorker)
+                    result = {"status": "error", "error": f"{type(exc).__name__}: {exc}",
+                              "traceback": "".join(traceback.format_exception(exc))}
+                del pending[future]
+                store_row(what, result)
+    except BrokenProcessPool:
+        # A local worker died. The tasks it may have been running are the oldest unfinished
+        # ones (the pool is first in, first out): record them as failed, so that a rerun goes on
+        # past the crash (--retry-failed redoes innocent bystanders).
+        n = getattr(engine, "workers", 1)
+        suspects = list(pending.values())[:n]
+        note = "" if n == 1 else f" (or a task running beside it: {n} workers)"
+        error = f"a worker process died while running this task{note}"
+        for kind, what in suspects:
+            for job in (groups[what] if kind == "scan" else [what]):
+                store_row(job, {"status": "error", "error": error, "traceback": None})
+        raise
 
 
 def _scan_task(runner: str, body: str, scanner: dict, seed: int):
@@ -439,6 +468,7 @@ class _LocalEngine:
         n = int(workers) if workers else (os.cpu_count() or 1)
         if n < 1:
             raise BenchError(f"--workers must be >= 1, got {workers}")
+        self.workers = n
         self.pool = ProcessPoolExecutor(max_workers=n,
                                         mp_context=multiprocessing.get_context("spawn"),
                                         initializer=_watch_parent, initargs=(os.getpid(),))

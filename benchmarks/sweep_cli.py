@@ -18,7 +18,7 @@ def register(sub) -> None:
                     "(one Parquet part per job in DIR/parts/). A failing job is stored with its "
                     "error and traceback and the sweep goes on. Run the same command again after "
                     "an interruption: finished jobs are skipped. Exit code 0 when every job "
-                    "succeeded, 1 when some failed.",
+                    "succeeded, 1 when some failed (in this run or an earlier one).",
         epilog=f"Shipped sweep files: {', '.join(sorted(p.stem for p in SWEEPS_DIR.glob('*.yaml')))}"
                f" (give the name, or any file; see {SWEEPS_DIR}/paper.yaml for the format).")
     p.add_argument("sweep_file", metavar="SWEEP.yaml",
@@ -78,9 +78,9 @@ def _sweep(args) -> int:
     print(f"sweep {sweep.name}: {summary.ok} succeeded, {summary.failed} failed, {summary.skipped} "
           f"already stored, {summary.scans} scans, {summary.seconds:.1f} s -> {args.out}",
           file=sys.stderr)
-    if summary.failed:
-        print(f"sweep: {summary.failed} job(s) failed; their errors are in the results "
-              f"(bodyscan report {args.out}); rerun with --retry-failed", file=sys.stderr)
+    if summary.failed_total:
+        print(f"sweep: {summary.failed_total} job(s) of this sweep failed; their errors are in the "
+              f"results (bodyscan report {args.out}); rerun with --retry-failed", file=sys.stderr)
         return 1
     return 0
 

@@ -42,6 +42,8 @@ TOY_RUNNER = textwrap.dedent('''
             raise ValueError("planted failure")
         if recon.get("t_d") == 0.3:
             warnings.warn("toy warning")
+        if recon.get("t_d") == 0.999:
+            os._exit(3)          # a crash that takes the worker process down
         return {"spurious_area_fraction": recon["t_d"] * scanned["k"],
                 "bridging_area_fraction": 0.01 * scanned["seed"] + (method == "m2"),
                 "scan_pid": scanned["pid"], "eval_pid": os.getpid()}
@@ -239,6 +241,23 @@ def _alive(pid: int) -> bool:
         return Path(f"/proc/{pid}/stat").read_text().split()[2] != "Z"
     except OSError:
         return False
+
+
+def test_a_dying_worker_stops_the_sweep_and_the_rerun_goes_past_it(tmp_path, toy):
+    path = write_sweep(tmp_path / "s.yaml", bodies=["a"], scanner={"k": 1},
+                       recon={"t_d": [0.1, 0.999, 0.2, 0.3]})
+    run = _bodyscan("sweep", str(path), "--out", str(tmp_path / "o"), "--workers", "1")
+    proc = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "a worker process died" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    table = ResultStore(tmp_path / "o").read().set_index("recon.t_d")
+    assert table.loc[0.1, "status"] == "ok"
+    assert table.loc[0.999, "status"] == "error" and "died" in table.loc[0.999, "error"]
+    assert 0.2 not in table.index          # not run yet: not recorded
+    again = subprocess.run(run, capture_output=True, text=True, timeout=120)
+    assert again.returncode == 1, again.stderr     # the crashed job stays failed
+    table = ResultStore(tmp_path / "o").read()
+    assert len(table) == 4 and (table.status == "ok").sum() == 3
 
 
 def test_cli_user_errors_are_one_line(tmp_path, toy):
