@@ -6,9 +6,10 @@ parameters, `load_shape`), both small YAML files in ``poses/postures/`` and ``po
 - anny poses its mesh (linear blend skinning, topology ``anny-noeyes-notongue``, a single
   watertight mesh of 13,348 vertices);
 - each vertex gets the section whose bones carry most of its skinning weight (`SECTION_BONES`);
-- edges longer than `GenerateParams.max_edge_m` are split at a curved (PN-triangle) midpoint, so
-  that the coarse torso facets (20-57 mm edges) do not show in a 2 mm scan; labels follow the
-  interpolated skinning weights;
+- edges longer than `GenerateParams.max_edge_m`, or bending more than `GenerateParams.max_sag_m`,
+  are split at a curved (PN-triangle) midpoint, so that the coarse torso facets (20-57 mm edges)
+  do not show in a 2 mm scan (the flat facets then stay within ~0.8 mm of the smooth surface);
+  labels follow the interpolated skinning weights;
 - the body is put on the floor (min z = 0) and centred in x, y on the pelvis.
 
 Posture YAML (angles in degrees, relative to anny's rest pose, which is an A-pose)::
@@ -92,6 +93,9 @@ class GenerateParams:
         Edges longer than this (metres) are split at a curved midpoint, repeatedly, until none is
         longer. anny's torso has 20-57 mm edges; 25 mm keeps the faceting of the torso below
         ~0.5 mm and the shipped library small (~0.3 MB a body).
+    max_sag_m : float
+        Edges whose curved midpoint lies farther than this (metres) from the straight one are
+        split too: this bounds the faceting where the surface bends sharply (shoulders, knees).
     quantum_m : float
         Vertices are rounded to multiples of this (metres; 2**-17 m, about 7.6 micrometres), a
         power of two so that the float32 file compresses better and the value is exact.
@@ -102,6 +106,7 @@ class GenerateParams:
     """
 
     max_edge_m: float = 0.025
+    max_sag_m: float = 0.0008
     quantum_m: float = 2.0 ** -17
     rig: str = "anny"
     topology: str = "anny-noeyes-notongue"
@@ -327,11 +332,12 @@ def _vertex_normals(vertices, faces):
     return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
 
 
-def split_long_edges(vertices, faces, attributes, max_edge):
+def split_long_edges(vertices, faces, attributes, max_edge, max_sag=np.inf):
     """Split every edge longer than ``max_edge`` once, at a curved midpoint, keeping the mesh closed.
 
     The new vertex of edge (a, b) is the midpoint of the PN-triangle cubic through a and b with
-    the vertex normals there: ``(a + b) / 2 - ((b - a).n_a n_a + (a - b).n_b n_b) / 8``. Faces
+    the vertex normals there: ``(a + b) / 2 - ((b - a).n_a n_a + (a - b).n_b n_b) / 8``. Edges
+    whose curved midpoint is farther than ``max_sag`` from the straight one are split too. Faces
     with 1, 2 or 3 split edges become 2, 3 or 4 faces (the quad of a 2-split face is cut along
     its shorter diagonal), so no T-junction appears.
 
@@ -342,6 +348,7 @@ def split_long_edges(vertices, faces, attributes, max_edge):
     attributes : (V, k) float
         Per-vertex values; new vertices get the mean of the edge's ends.
     max_edge : float, metres
+    max_sag : float, metres
 
     Returns
     -------
@@ -354,15 +361,16 @@ def split_long_edges(vertices, faces, attributes, max_edge):
     key = np.sort(e, axis=1)
     uniq, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
-    length = np.linalg.norm(vertices[uniq[:, 0]] - vertices[uniq[:, 1]], axis=1)
-    split = length > max_edge
-    if not split.any():
-        return vertices, faces, attributes
     n = _vertex_normals(vertices, faces)
-    a, b = uniq[split, 0], uniq[split, 1]
+    a, b = uniq[:, 0], uniq[:, 1]
     pa, pb, na, nb = vertices[a], vertices[b], n[a], n[b]
     d = pb - pa
-    mid = 0.5 * (pa + pb) - ((d * na).sum(1)[:, None] * na - (d * nb).sum(1)[:, None] * nb) / 8.0
+    sag = ((d * na).sum(1)[:, None] * na - (d * nb).sum(1)[:, None] * nb) / 8.0
+    split = (np.linalg.norm(d, axis=1) > max_edge) | (np.linalg.norm(sag, axis=1) > max_sag)
+    if not split.any():
+        return vertices, faces, attributes
+    a, b = a[split], b[split]
+    mid = 0.5 * (pa[split] + pb[split]) - sag[split]
     new_index = np.full(len(uniq), -1)
     new_index[split] = V + np.arange(split.sum())
     m = new_index[inv].reshape(-1, 3)  # (F, 3) midpoint of edge i (v_i, v_{i+1}) or -1
@@ -419,11 +427,11 @@ def canonical_faces(faces):
     return f[np.lexsort((f[:, 2], f[:, 1], f[:, 0]))]
 
 
-def refine(vertices, faces, attributes, max_edge):
+def refine(vertices, faces, attributes, max_edge, max_sag=np.inf):
     """Apply `split_long_edges` until no edge is longer than ``max_edge`` (at most 4 passes)."""
     for _ in range(4):
         nv = len(vertices)
-        vertices, faces, attributes = split_long_edges(vertices, faces, attributes, max_edge)
+        vertices, faces, attributes = split_long_edges(vertices, faces, attributes, max_edge, max_sag)
         if len(vertices) == nv:
             break
     return vertices, faces, attributes
@@ -454,7 +462,7 @@ def generate(posture, shape, params: GenerateParams = GenerateParams(), name: st
     posture = load_posture(posture)
     shape = load_shape(shape)
     vertices, faces, joints, weights = pose_anny(posture, shape, params)
-    vertices, faces, weights = refine(vertices, faces, weights, params.max_edge_m)
+    vertices, faces, weights = refine(vertices, faces, weights, params.max_edge_m, params.max_sag_m)
     labels = np.argmax(weights, axis=1).astype(np.int8)
     offset = np.array([joints[0, 0], joints[0, 1], vertices[:, 2].min()])
     vertices = vertices - offset
