@@ -98,7 +98,7 @@ def closeups(body) -> dict:
         out[f"armpit_{side}"] = (c, 0.15)
     hips = 0.5 * (j["hip_l"] + j["hip_r"])
     knees = 0.5 * (j["knee_l"] + j["knee_r"])
-    out["crotch"] = (0.7 * hips + 0.3 * knees, 0.15)
+    out["crotch"] = (0.85 * hips + 0.15 * knees, 0.15)
     return out
 
 
@@ -252,6 +252,7 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
             rec = recon.reconstruct(scan.points, method, rp, view_dir=scan.view_dir, fit=fit)
         times = dict(rec.times)
         if fit is not None:
+            times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
             times["fit"] = float(fit_seconds)
             times["total"] = times.get("total", 0.0) + float(fit_seconds)
         vertices, faces = rec.vertices, rec.faces
@@ -515,7 +516,8 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
     (out / "report.md").write_text(report_markdown(table, config, summary, pictures, picture_case))
     _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
-         f"report.md, run.json" + (f" and {len(pictures)} pictures" if pictures else ""), progress)
+         f"report.md, run.json" + (f" and pictures of {len(pictures)} method(s) in img/" if pictures else ""),
+         progress)
     return BenchResult(table=table, out=out, summary=summary)
 
 
@@ -523,16 +525,27 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
 # tables, pictures, metadata
 
 
+def common_cases(table):
+    """The rows of the scans that every method of the table reconstructed (like with like)."""
+    key = ["body", "preset", "k"]
+    ok = table[table["status"] == "ok"]
+    n = table["method"].nunique()
+    counts = ok.groupby(key)["method"].nunique()
+    keep = counts[counts == n].index
+    return ok.set_index(key).loc[lambda t: t.index.isin(keep)].reset_index()
+
+
 def method_summary(table):
     """Per method and metric: mean over postures (each the mean over its scans), the worst
-    posture's value and its name. Returns a DataFrame indexed by method."""
+    posture's value and its name, over the scans every method reconstructed (`common_cases`).
+    Returns a DataFrame indexed by method (with ``cases`` used and ``failed``)."""
     import pandas as pd
 
     methods = [m for m in METHODS if m in set(table["method"])]
     records = []
-    ok = table[table["status"] == "ok"]
+    ok = common_cases(table)
     for m in methods:
-        rec = {"method": m, "cases": int((table["method"] == m).sum()), "failed": int(
+        rec = {"method": m, "cases": int((ok["method"] == m).sum()), "failed": int(
             ((table["method"] == m) & (table["status"] != "ok")).sum())}
         for metric, (_, _, _, higher) in TABLE.items():
             if metric not in ok.columns:
@@ -565,13 +578,17 @@ def summary_table(table) -> str:
     for method, rec in s.iterrows():
         fail = f" ({rec['failed']} failed)" if rec["failed"] else ""
         lines.append([method + fail] + [_fmt(m, rec[m]) for m in metrics])
-        lines.append(["  worst"] + [_fmt(m, rec[f"{m}:worst"]) for m in metrics])
+        if table["body"].nunique() > 1:
+            lines.append(["  worst"] + [_fmt(m, rec[f"{m}:worst"]) for m in metrics])
     width = [max(len(str(r[i])) for r in [head] + lines) for i in range(len(head))]
     fmt = lambda r: "  ".join(str(c).ljust(w) if i == 0 else str(c).rjust(w)  # noqa: E731
                               for i, (c, w) in enumerate(zip(r, width)))
     out = [fmt(head), "  ".join("-" * w for w in width)] + [fmt(r) for r in lines]
-    n_bodies = table["body"].nunique()
-    out.append(f"mean over {n_bodies} posture(s) (each averaged over its scans); 'worst': the worst "
+    common = common_cases(table)
+    n_scans = len(common.groupby(["body", "preset", "k"]))
+    n_all = len(table.groupby(["body", "preset", "k"]))
+    out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
+               "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
                "Rseen: recall of the surface the scanner saw, CD-L1: Chamfer-L1 (mean of both "
                "directions), NC: normal consistency, joint: median joint error.")
@@ -588,7 +605,9 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           f"methods {', '.join(config.methods)}; scan seed {config.seed}. "
           f"Every number is in `results.parquet`; settings in `run.json`.", "",
           "## By method", "",
-          "Mean over postures (each posture averaged over its scans); below, the worst posture.", "",
+          "Mean over postures (each posture averaged over its scans); below, the worst posture. "
+          "Only the scans that every method reconstructed count here (failures are listed below "
+          "and kept in the per-case table).", "",
           "| method | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
           "|---|" + "---:|" * len(metrics)]
     for method, rec in s.iterrows():

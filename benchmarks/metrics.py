@@ -452,9 +452,10 @@ def corner_true_faces(vertices: np.ndarray, faces: np.ndarray, truth: GroundTrut
 
     A vertex that is a scan point takes the point's ``gt_face``. Any other vertex takes the
     triangle of the nearest point of the true surface, found from the corner moved by ``inset``
-    of the way towards its triangle's centroid: this settles ties where a vertex sits on an edge
+    of the way towards its triangle's centroid (but at least 10 micrometres, above float32
+    rounding, and at most a quarter of the way): this settles ties where a vertex sits on an edge
     shared by true triangles of different normals (the true mesh scored against itself), and
-    moves the query by at most 0.1 mm for a 10 cm triangle.
+    moves the query by 0.1 mm for a 10 cm triangle.
 
     Parameters
     ----------
@@ -488,7 +489,11 @@ def corner_true_faces(vertices: np.ndarray, faces: np.ndarray, truth: GroundTrut
     rest = out < 0
     if rest.any():
         tri = vertices[faces]
-        corner = tri + inset * (tri.mean(axis=1, keepdims=True) - tri)
+        d = tri.mean(axis=1, keepdims=True) - tri
+        length = np.linalg.norm(d, axis=2, keepdims=True)
+        # at least 10 micrometres (above float32 rounding), at most a quarter of the way
+        step = np.minimum(np.maximum(inset * length, 1e-5), 0.25 * length)
+        corner = tri + d * np.divide(step, length, out=np.zeros_like(length), where=length > 0)
         out[rest] = truth.index.query(corner[rest])[1]
     return out
 
