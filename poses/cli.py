@@ -35,12 +35,21 @@ def register(sub) -> None:
                      help="body shape: a name from poses/shapes/ or a shape YAML path (default: average_male)")
     gen.add_argument("--out", metavar="FILE",
                      help="body .npz to write (with --library: the folder, default the shipped library)")
-    gen.add_argument("--name", help="body name stored in the file (default: the --out file stem)")
     gen.add_argument("--max-edge", type=float, default=None, metavar="M",
                      help="split edges longer than this, metres (default: 0.025)")
     gen.add_argument("--library", action="store_true",
                      help="regenerate every body of poses/shipped.yaml instead of one")
     gen.set_defaults(func=_generate)
+
+    chk = psub.add_parser(
+        "check", help="measure gaps between close body parts and look for interpenetration",
+        description="For each BODY: the smallest gaps (cm) arm-torso (without the armpit fold), "
+                    "hand-hip, thigh-thigh and between any two sections that do not meet at a joint, "
+                    "and the number of vertices pushed into a part that is not a neighbour. Exit "
+                    "code 1 when a body has interpenetrating vertices.")
+    chk.add_argument("bodies", nargs="*", metavar="BODY",
+                     help="shipped body names or body .npz files (default: the whole library)")
+    chk.set_defaults(func=_check)
 
 
 def _list(args) -> int:
@@ -93,6 +102,27 @@ def _generate(args) -> int:
         print(f"poses generate: --out {out} must end in .npz", file=sys.stderr)
         return 2
     posture, shape = load_posture(args.pose), load_shape(args.shape)  # user errors before the slow part
-    body = generate(posture, shape, params, name=args.name or out.stem)
+    body = generate(posture, shape, params, name=out.stem)
     print(save_body(body, out))
     return 0
+
+
+def _check(args) -> int:
+    from .body import load_body
+    from .checks import gaps, interpenetration
+    from .library import list_bodies
+
+    names = args.bodies or list_bodies()
+    print(f"{'name':<24} {'height_m':>8} {'arm_torso':>9} {'hand_hip':>8} {'thigh_thigh':>11} "
+          f"{'nonadjacent':>11} {'interpenetrating':>16}")
+    worst = 0
+    for name in names:
+        body = load_body(name)
+        body.require_ground_truth("checking gaps")
+        g = {k: 100 * v for k, v in gaps(body).items()}
+        bad = int(interpenetration(body).sum())
+        worst = max(worst, bad)
+        print(f"{body.name:<24} {body.height:>8.3f} {g['arm_torso']:>9.1f} {g['hand_hip']:>8.1f} "
+              f"{g['thigh_thigh']:>11.1f} {g['nonadjacent']:>11.1f} {bad:>16d}", flush=True)
+    print("gaps in cm; interpenetrating = vertices inside a part that is not their neighbour")
+    return 1 if worst else 0

@@ -253,7 +253,8 @@ def _bone_sections(bone_labels) -> np.ndarray:
     out = np.full(len(bone_labels), -1, dtype=int)
     for b, bone in enumerate(bone_labels):
         for s, section in enumerate(SECTIONS):
-            if any(fnmatchcase(bone, pat) or (bone.startswith(pat) and "*" not in pat)
+            # a pattern with * is a glob; one without is a prefix (``neck`` for neck01..03)
+            if any(fnmatchcase(bone, pat) if "*" in pat else bone.startswith(pat)
                    for pat in SECTION_BONES[section]):
                 out[b] = s
                 break
