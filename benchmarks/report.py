@@ -355,7 +355,8 @@ def _best_settings(doc, ok, metrics):
         means = group.groupby("recon_json")[metrics].mean()
         means = means.assign(_bad=means[need].sum(axis=1)).sort_values("_bad")
         for recon_json, row in means.head(5).iterrows():
-            settings = ", ".join(f"{k}={v}" for k, v in json.loads(recon_json).items()) or "defaults"
+            settings = ", ".join(f"{k}={v}" for k, v in json.loads(recon_json).items())
+            settings = settings or "defaults"
             rows.append([method, settings] + [_fmt(m, row[m]) for m in metrics])
     doc.table(["method", "settings"] + [SHOWN[m][0] for m in metrics], rows,
               "Per method, the five settings with the least spurious + bridging area "
@@ -447,8 +448,8 @@ def _figures(doc, ok, pd):
     if bar_metrics:
         doc.heading("Per posture")
         bodies = sorted(ok["body"].unique())
-        fig = Figure(figsize=(max(6.0, 0.55 * len(bodies) * len(methods) + 2), 2.8 * len(bar_metrics)),
-                     layout="constrained")
+        width_in = max(6.0, 0.55 * len(bodies) * len(methods) + 2)
+        fig = Figure(figsize=(width_in, 2.8 * len(bar_metrics)), layout="constrained")
         width = 0.8 / len(methods)
         for i, metric in enumerate(bar_metrics):
             ax = fig.add_subplot(len(bar_metrics), 1, i + 1)
@@ -524,9 +525,10 @@ def _pictures(doc, store: ResultStore, table):
                 if key in mesh:
                     red |= mesh[key].astype(bool)
             colors = section_face_colors(mesh.get("face_section", np.full(len(red), -1)), red)
-            title = (f"#{rank} {row.method} / {row.body}: spurious "
-                     f"{_fmt('spurious_area_fraction', getattr(row, 'spurious_area_fraction', None))} %, "
-                     f"bridging {_fmt('bridging_area_fraction', getattr(row, 'bridging_area_fraction', None))} %")
+            spurious = _fmt("spurious_area_fraction", getattr(row, "spurious_area_fraction", None))
+            bridging = _fmt("bridging_area_fraction", getattr(row, "bridging_area_fraction", None))
+            title = (f"#{rank} {row.method} / {row.body}: spurious {spurious} %, "
+                     f"bridging {bridging} %")
             settings = _settings(row)
             path = render_mesh(mesh["vertices"], mesh["faces"], colors, Path(tmp) / "full.png",
                                views=("front", "side", "back"), size=_VIEW_SIZE, title=title)

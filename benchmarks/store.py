@@ -208,7 +208,8 @@ class ResultStore:
         """A kept mesh, as `put_mesh` took it (``closeups`` back as a dict)."""
         with np.load(self.meshes / f"{job_id}.npz") as data:
             mesh = {k: data[k] for k in data.files if k != "closeups_json"}
-            closeups = json.loads(str(data["closeups_json"])) if "closeups_json" in data.files else {}
+            text = str(data["closeups_json"]) if "closeups_json" in data.files else "{}"
+        closeups = json.loads(text)
         mesh["closeups"] = {k: (np.asarray(c), float(r)) for k, (c, r) in closeups.items()}
         return mesh
 

@@ -18,6 +18,8 @@ fixed::
       "mesh_theta,mesh_h": [[5, 5], [10, 10]]   # tied axes: values taken together
       cases: [{t_n_factor: 0.3}, {t_n_factor: 0.6, near_band: 2}]   # explicit combinations,
                                                                     # crossed with the grid
+    keep_meshes: 3                   # per method, the meshes of the 3 worst jobs are kept
+                                     # for the report's pictures
 
 A list-valued setting is written as a list of lists (``[[1, 2, 3]]`` is one value). Every
 combination of body x seed x scanner setting x method x recon setting is one job. A job's id is a
@@ -25,7 +27,11 @@ hash of all of these, so the same job has the same id in every run: `run_sweep` 
 results are already stored (see `benchmarks.store`) and runs only the rest.
 
 Scans are simulated once per (body, scanner setting, seed), on a worker, and every job of that
-scan gets the same scan: jobs are submitted when their scan is ready.
+scan gets the same scan: jobs are submitted when their scan is ready. The engine is local worker
+processes (`concurrent.futures.ProcessPoolExecutor`, one per core by default) or, with
+``scheduler="tcp://HOST:PORT"``, a Dask distributed cluster; either way the driving process
+receives each result and stores it at once, and prints progress (done, failed, left, time left)
+on stderr.
 
 The work itself is done by a *runner*, a module with two functions (the default, `DEFAULT_RUNNER`,
 simulates with `simulator` and scores with `benchmarks.bench.evaluate`)::
@@ -128,7 +134,6 @@ class Sweep:
     body_paths: dict = field(default_factory=dict)
     source: str = ""
     recon_free: tuple = ()
-
 
     def jobs(self) -> list[Job]:
         """Every job, grouped by scan (all jobs of one scan are adjacent)."""
@@ -258,7 +263,8 @@ def expand_grid(section: dict, *, where: str = "sweep") -> list[dict]:
         for part in combo:
             clash = set(merged) & set(part)
             if clash:
-                raise BenchError(f"{where}: {', '.join(sorted(clash))} set twice in one combination")
+                raise BenchError(f"{where}: {', '.join(sorted(clash))} set twice in one "
+                                 "combination")
             merged.update(part)
         out.append(merged)
     return out
@@ -276,7 +282,7 @@ class SweepSummary:
     failed: int
     seconds: float
     scans: int
-    failed_total: int = 0    # jobs of the sweep whose stored result is an error, this run's or older
+    failed_total: int = 0    # jobs of the sweep stored as errors, in this run or an earlier one
 
     @property
     def remaining(self) -> int:
@@ -312,13 +318,20 @@ def run_sweep(sweep: Sweep, out, *, scheduler: str | None = None, workers: int |
     todo = [j for j in jobs if j.job_id not in done]
     store.write_text("sweep.yaml", sweep.source)
     meta = store.read_json("meta.json")
+    provenance = _provenance()
     runs = meta.get("runs", [])
     runs.append({"started": time.strftime("%Y-%m-%dT%H:%M:%S%z"), "jobs": len(jobs),
-                 "todo": len(todo), "engine": scheduler or f"local:{workers or os.cpu_count()}"})
+                 "todo": len(todo), "engine": scheduler or f"local:{workers or os.cpu_count()}",
+                 "git_commit": provenance["git_commit"]})
     store.write_json("meta.json", {"sweep": sweep.name, "runner": sweep.runner, "runs": runs,
-                                   **_provenance()})
+                                   **provenance})
     stored_failures = len(done - store.finished(include_failed=False)) if done else 0
     stream = sys.stderr if progress is True else (progress or None)
+    earlier = {r.get("git_commit") for r in runs[:-1]} - {provenance["git_commit"]}
+    if stream is not None and done and earlier:
+        commits = ", ".join(sorted(str(c)[:12] for c in earlier))
+        print(f"sweep: note: {out} holds results of other code ({commits}); finished jobs are "
+              "not rerun: use a new --out folder to measure this code", file=stream)
     meter = _Progress(len(jobs), len(jobs) - len(todo), stream, stored_failures)
     keeper = _MeshKeeper(store, sweep.keep_meshes)
     groups: dict[str, list[Job]] = {}

@@ -17,7 +17,8 @@ def register(sub) -> None:
                     "x reconstruction parameters), storing each result the moment it is done "
                     "(one Parquet part per job in DIR/parts/). A failing job is stored with its "
                     "error and traceback and the sweep goes on. Run the same command again after "
-                    "an interruption: finished jobs are skipped. Exit code 0 when every job "
+                    "an interruption: finished jobs are skipped (so after changing the code, use a new "
+                    "--out folder). Exit code 0 when every job "
                     "succeeded, 1 when some failed (in this run or an earlier one).",
         epilog=f"Shipped sweep files: {', '.join(sorted(p.stem for p in SWEEPS_DIR.glob('*.yaml')))}"
                f" (give the name, or any file; see {SWEEPS_DIR}/paper.yaml for the format).")

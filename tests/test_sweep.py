@@ -4,7 +4,6 @@ The machinery is tested with a toy runner (a module written to a temporary folde
 known functions of the parameters, so every stored number can be checked exactly.
 """
 
-import json
 import os
 import signal
 import socket
