@@ -120,6 +120,25 @@ def test_standing_left_is_plus_x_and_head_highest(name):
     assert feet[:, 1].min() < b.joint("ankle_l")[1] - 0.1
 
 
+@pytest.mark.parametrize("name", STANDING)
+def test_neck_hands_and_feet_belong_to_head_forearms_and_lower_legs(name):
+    b = load_body(name)
+    s, v = b.vertex_section, b.vertices
+    above_neck = v[:, 2] > b.joint("neck")[2] + 0.03
+    assert (s[above_neck] == SECTIONS.index("head")).all()
+    for side in "lr":
+        feet = v[:, 2] < b.joint(f"ankle_{side}")[2] - 0.02
+        feet &= np.sign(v[:, 0]) == (1 if side == "l" else -1)
+        assert (s[feet] == SECTIONS.index(f"lower_leg_{side}")).all()
+        elbow, wrist = b.joint(f"elbow_{side}"), b.joint(f"wrist_{side}")
+        axis = (wrist - elbow) / np.linalg.norm(wrist - elbow)
+        along = (v - wrist) @ axis
+        off_axis = np.linalg.norm(v - wrist - along[:, None] * axis, axis=1)
+        hand = (along > 0.02) & (along < 0.2) & (off_axis < 0.045)
+        assert hand.sum() > 200
+        assert (s[hand] == SECTIONS.index(f"forearm_{side}")).all()
+
+
 def _crossing_edges(b: Body) -> int:
     """Edges of one section that pass through a face of a section it does not adjoin.
 
