@@ -281,6 +281,7 @@ def build_report(sweep_dir, out, *, pictures: bool = True, gate: GateResult | No
             rows.append([method, body, len(group)] + [_fmt(m, group[m].mean()) for m in metrics])
         doc.table(["method", "posture", "jobs"] + [SHOWN[m][0] for m in metrics], rows,
                   "Mean over the jobs of each method and posture (all swept settings).")
+        _at_defaults(doc, ok, metrics)
         _best_settings(doc, ok, metrics)
         _figures(doc, ok, pd)
     if pictures:
@@ -339,6 +340,35 @@ def _settings(row) -> str:
         except (TypeError, ValueError, AttributeError):
             pass
     return ", ".join(parts)
+
+
+def _at_defaults(doc, ok, metrics):
+    """The by-posture table again, for the jobs whose swept reconstruction parameters have their
+    default values (the paper's, where it gives them): the paper's experiment within the sweep."""
+    swept = [c for c in _param_columns(ok) if c.startswith("recon.")]
+    if not swept:
+        return
+    try:
+        from recon import ReconParams
+        defaults = ReconParams().to_dict()
+    except ImportError:
+        return
+    mask = np.ones(len(ok), bool)
+    for column in swept:
+        default = defaults.get(column[len("recon."):])
+        if default is None or isinstance(default, (tuple, list, dict)):
+            return
+        values = ok[column]
+        mask &= (values.isna() | (values.astype(object) == default)).to_numpy()
+    chosen = ok[mask]
+    if not len(chosen):
+        return
+    names = ", ".join(f"{c[len('recon.'):]}={defaults[c[len('recon.'):]]}" for c in swept)
+    doc.heading("By method and posture, at the default settings")
+    rows = [[method, body, len(group)] + [_fmt(m, group[m].mean()) for m in metrics]
+            for (method, body), group in chosen.groupby(["method", "body"], sort=True)]
+    doc.table(["method", "posture", "jobs"] + [SHOWN[m][0] for m in metrics], rows,
+              f"The jobs whose swept parameters have their defaults ({names}).")
 
 
 def _best_settings(doc, ok, metrics):

@@ -25,7 +25,7 @@ from benchmarks.sweep import Job
 BODIES = ("standing", "t_pose")
 METHODS = ("proposed", "simple")
 T_D = (0.1, 0.3)
-T_N = (0.3, 0.6)
+T_N = (0.3, 0.5)   # 0.5, with t_d 0.3 and 10 x 10 cells: the defaults
 MESH = ((5, 5), (10, 10))
 
 
@@ -97,6 +97,11 @@ def test_report_files_and_tables(built):
     expected = f"{np.mean(values) * 100:.2f}"
     line = next(l for l in md.splitlines() if l.startswith("| proposed | t_pose |"))
     assert line.split("|")[3].strip() == str(len(jobs)) and line.split("|")[4].strip() == expected
+    # the same table at the default settings: one job each, t_d 0.3, T_n factor 0.5, 10 x 10
+    section = md.split("## By method and posture, at the default settings")[1].split("##")[0]
+    line = next(l for l in section.splitlines() if l.startswith("| proposed | t_pose |"))
+    expected = f"{spurious_of('proposed', 't_pose', 0.3, 0.5, 10) * 100:.2f}"
+    assert line.split("|")[3].strip() == "1" and line.split("|")[4].strip() == expected
     # every picture the markdown names exists
     names = re.findall(r"\]\(img/([^)]+)\)", md)
     assert names and all((root / "rep" / "img" / n).is_file() for n in names)
