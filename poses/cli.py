@@ -45,8 +45,11 @@ def register(sub) -> None:
         "check", help="measure gaps between close body parts and look for interpenetration",
         description="For each BODY: the smallest gaps (cm) arm-torso (without the armpit fold), "
                     "hand-hip, thigh-thigh and between any two sections that do not meet at a joint, "
-                    "and the number of vertices pushed into a part that is not a neighbour. Exit "
-                    "code 1 when a body has interpenetrating vertices.")
+                    "the number of vertices pushed into a part that is not a neighbour "
+                    "(interpenetrating), and the number of vertices inside the body at all (contact: "
+                    "closed lips, toes, and the folds of bent joints, where linear blend skinning "
+                    "overlaps neighbouring sections). Exit code 1 when a body has interpenetrating "
+                    "vertices.")
     chk.add_argument("bodies", nargs="*", metavar="BODY",
                      help="shipped body names or body .npz files (default: the whole library)")
     chk.set_defaults(func=_check)
@@ -109,12 +112,12 @@ def _generate(args) -> int:
 
 def _check(args) -> int:
     from .body import load_body
-    from .checks import gaps, interpenetration
+    from .checks import gaps, inside_vertices, interpenetration
     from .library import list_bodies
 
     names = args.bodies or list_bodies()
     print(f"{'name':<24} {'height_m':>8} {'arm_torso':>9} {'hand_hip':>8} {'thigh_thigh':>11} "
-          f"{'nonadjacent':>11} {'interpenetrating':>16}")
+          f"{'nonadjacent':>11} {'interpenetrating':>16} {'contact':>7}")
     worst = 0
     for name in names:
         body = load_body(name)
@@ -123,6 +126,8 @@ def _check(args) -> int:
         bad = int(interpenetration(body).sum())
         worst = max(worst, bad)
         print(f"{body.name:<24} {body.height:>8.3f} {g['arm_torso']:>9.1f} {g['hand_hip']:>8.1f} "
-              f"{g['thigh_thigh']:>11.1f} {g['nonadjacent']:>11.1f} {bad:>16d}", flush=True)
-    print("gaps in cm; interpenetrating = vertices inside a part that is not their neighbour")
+              f"{g['thigh_thigh']:>11.1f} {g['nonadjacent']:>11.1f} {bad:>16d} "
+              f"{int(inside_vertices(body).sum()):>7d}", flush=True)
+    print("gaps in cm; interpenetrating = vertices inside a part that is not their neighbour; "
+          "contact = vertices inside the body at all")
     return 1 if worst else 0
