@@ -46,6 +46,7 @@ from pathlib import Path
 import numpy as np
 
 from .body import REQUIRED_JOINTS, SECTIONS, Body, BodyError
+from .checks import vertex_normals
 
 #: Version of this generator; stored in every generated body file.
 GENERATOR_VERSION = "1"
@@ -325,14 +326,6 @@ def pose_anny(posture: dict, shape: dict, params: GenerateParams = GenerateParam
 
 # ----------------------------------------------------------------------------- refinement
 
-def _vertex_normals(vertices, faces):
-    fn = np.cross(vertices[faces[:, 1]] - vertices[faces[:, 0]], vertices[faces[:, 2]] - vertices[faces[:, 0]])
-    vn = np.zeros_like(vertices)
-    for k in range(3):
-        np.add.at(vn, faces[:, k], fn)
-    return vn / np.maximum(np.linalg.norm(vn, axis=1, keepdims=True), 1e-300)
-
-
 def split_long_edges(vertices, faces, attributes, max_edge, max_sag=np.inf):
     """Split every edge longer than ``max_edge`` once, at a curved midpoint, keeping the mesh closed.
 
@@ -362,7 +355,7 @@ def split_long_edges(vertices, faces, attributes, max_edge, max_sag=np.inf):
     key = np.sort(e, axis=1)
     uniq, inv = np.unique(key, axis=0, return_inverse=True)
     inv = inv.reshape(-1)
-    n = _vertex_normals(vertices, faces)
+    n = vertex_normals(vertices, faces)
     a, b = uniq[:, 0], uniq[:, 1]
     pa, pb, na, nb = vertices[a], vertices[b], n[a], n[b]
     d = pb - pa
