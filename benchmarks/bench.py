@@ -405,7 +405,16 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
         for k in config.ks:
             cfg = simulator.preset(preset, **{**config.scanner, "k": k})
             t0 = time.perf_counter()
-            sc = simulator.scan(body, cfg, seed=config.seed)
+            try:
+                sc = simulator.scan(body, cfg, seed=config.seed)
+            except Exception as exc:  # every method of this scan fails with it
+                error = f"scan failed: {type(exc).__name__}: {exc}"
+                out += [({"body": body.name, "method": m, "preset": preset, "k": float(k),
+                          "seed": config.seed, "status": "error", "error": error}, None)
+                        for m in config.methods]
+                if verbose:
+                    _log(f"  {body.name} {preset} k={k:g}: {error}", sys.stderr)
+                continue
             scan_s = time.perf_counter() - t0
             fit, fit_s, fit_mb, fit_error, fit_warn = None, 0.0, 0.0, None, []
             if uses_recon:
