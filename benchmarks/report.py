@@ -329,7 +329,7 @@ def _fmt(metric, value) -> str:
 def _param_columns(table) -> list:
     """Parameter columns (``scanner.*``, ``recon.*``) that take more than one value."""
     cols = [c for c in table.columns if c.startswith(("scanner.", "recon."))]
-    return [c for c in cols if table[c].astype(str).nunique() > 1]
+    return [c for c in cols if table[c].dropna().astype(str).nunique() > 1]
 
 
 def _settings(row) -> str:
@@ -431,6 +431,8 @@ def _figures(doc, ok, pd):
             for i, metric in enumerate(area):
                 grid = group.pivot_table(index="recon.t_n_factor", columns="recon.t_d",
                                          values=metric, aggfunc="mean") * 100
+                if grid.empty:      # a method without these parameters (a peer)
+                    break
                 ax = fig.add_subplot(1, len(area), i + 1)
                 image = ax.imshow(grid.values, origin="lower", cmap="magma_r", aspect="auto")
                 ax.set_xticks(range(len(grid.columns)), [f"{v:g}" for v in grid.columns])
@@ -443,6 +445,8 @@ def _figures(doc, ok, pd):
                         ax.text(c, r, f"{v:.2f}", ha="center", va="center", fontsize=7,
                                 color="white" if v > np.nanmean(grid.values) else "black")
                 fig.colorbar(image, ax=ax, label="% of the mesh area")
+            if not fig.axes:
+                continue
             doc.image(f"heatmap_{_safe(method)}.png", _png(fig),
                       f"{method}: spurious and bridging area (%) over T_d and T_n factor "
                       "(mean over postures and other settings)")

@@ -23,7 +23,8 @@ from benchmarks.store import ResultStore
 from benchmarks.sweep import Job
 
 BODIES = ("standing", "t_pose")
-METHODS = ("proposed", "simple")
+METHODS = ("proposed", "simple")   # with the grid of recon parameters
+ALL_METHODS = METHODS + ("bpa",)    # and a peer without them
 T_D = (0.1, 0.3)
 T_N = (0.3, 0.5)   # 0.5, with t_d 0.3 and 10 x 10 cells: the defaults
 MESH = ((5, 5), (10, 10))
@@ -53,6 +54,16 @@ def fill(root, *, shift=0.0, drop=(), fail=1, meshes=2):
                    section_accuracy=0.97 - t_d / 10, joint_error_median_m=0.02,
                    time_fit_s=1.0, time_cluster_s=0.2 * mt, time_surface_s=0.7,
                    time_total_s=1.7 + 0.2 * mt, **{"fscore_seen@5mm": 0.9 - t_d / 10})
+        rows.append(row)
+    for body in BODIES:   # a peer: no reconstruction parameters, one job per posture
+        if ("bpa", body) in drop:
+            continue
+        job = Job(f"{body}-bpa", f"s-{body}", body, 0, {"preset": "paper", "k": 1}, "bpa", {})
+        row = job.row()
+        row.update(status="ok", error=None, traceback=None, wall_s=1.0, worker="h:1",
+                   finished_at=0.0, spurious_area_fraction=0.01 + shift,
+                   bridging_area_fraction=0.0, section_accuracy=None, time_bpa_s=2.0,
+                   time_total_s=2.0, **{"fscore_seen@5mm": 0.85})
         rows.append(row)
     for row in rows[:fail]:
         row.update(status="error", error="ReconError: the fit failed", traceback="Traceback...")
@@ -105,9 +116,11 @@ def test_report_files_and_tables(built):
     # every picture the markdown names exists
     names = re.findall(r"\]\(img/([^)]+)\)", md)
     assert names and all((root / "rep" / "img" / n).is_file() for n in names)
-    for kind in ("heatmap_proposed", "heatmap_simple", "curve_mesh_size", "postures", "time",
-                 "armpit_l", "crotch"):
+    for kind in ("heatmap_proposed", "heatmap_simple", "curve_mesh_size", "curve_recon_t_d",
+                 "postures", "time", "armpit_l", "crotch"):
         assert any(kind in n for n in names), kind
+    # the peer has no heat map, and parameters that are not swept get no curve
+    assert not any("heatmap_bpa" in n or "voxel" in n for n in names)
 
 
 def test_html_is_self_contained(built):
@@ -187,7 +200,7 @@ def test_gate_passes_on_itself_and_lists_regressions(tmp_path):
     # worse beyond it: one regression per method and posture, naming the metric and values
     worse = fill(tmp_path / "worse", shift=0.05).read()
     result = report.check_gate(worse, baseline)
-    assert len(result.regressions) == len(BODIES) * len(METHODS)
+    assert len(result.regressions) == len(BODIES) * len(ALL_METHODS)
     assert all("spurious_area_fraction" in r for r in result.regressions)
     assert not result.passed and "FAILED" in result.text()
     # better is never a regression
@@ -216,14 +229,14 @@ def test_report_command_gate_and_baseline_update(tmp_path, capsys):
     assert bodyscan(["report", str(tmp_path / "base"), "--out", str(tmp_path / "r1"),
                      "--update-baseline", *common]) == 0
     stored = json.loads(baseline.read_text())
-    assert set(stored["metrics"]) == set(METHODS)
+    assert set(stored["metrics"]) == set(ALL_METHODS)
     assert bodyscan(["report", str(tmp_path / "base"), "--out", str(tmp_path / "r2"),
                      "--fail-on-regression", *common]) == 0
     assert "PASSED" in capsys.readouterr().out
     assert bodyscan(["report", str(tmp_path / "worse"), "--out", str(tmp_path / "r3"),
                      "--fail-on-regression", *common]) == 1
     err = capsys.readouterr().err
-    assert "FAILED, 4 regression(s)" in err and "proposed / standing: spurious_area_fraction" in err
+    assert "FAILED, 6 regression(s)" in err and "proposed / standing: spurious_area_fraction" in err
     assert json.loads((tmp_path / "r3" / "gate.json").read_text())["passed"] is False
     assert "Accuracy gate" in (tmp_path / "r3" / "report.md").read_text()
     # without --fail-on-regression the gate is reported, and the exit code stays 0
