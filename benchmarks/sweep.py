@@ -592,6 +592,8 @@ class _Progress:
                   file=stream, flush=True)
 
     def update(self, ok: bool) -> None:
+        if not self.ok + self.failed:
+            self.first = time.perf_counter()
         self.ok += ok
         self.failed += not ok
         now = time.perf_counter()
@@ -607,8 +609,10 @@ class _Progress:
 
     def _print(self, end="\n"):
         ran = self.ok + self.failed
-        elapsed = time.perf_counter() - self.start
-        eta = elapsed / ran * self.left if ran else math.nan
+        now = time.perf_counter()
+        elapsed = now - self.start
+        # the rate since the first result: the scans and fits before it are not a job's cost
+        eta = (now - self.first) / (ran - 1) * self.left if ran >= 2 else math.nan
         print(f"sweep: {self.skipped + ran}/{self.total} done ({self.failed} failed), "
               f"{self.left} left, elapsed {_hms(elapsed)}, ETA {_hms(eta)}",
               file=self.stream, end=end, flush=True)
