@@ -40,14 +40,16 @@ _EXTENT = (0.5, 99.5)
 
 
 def section_from_vertices(name: str, start: np.ndarray, target: np.ndarray, verts: np.ndarray,
-                          free_end: bool = False) -> SectionShape:
+                          free_end: bool = False, size_whole: bool = False) -> SectionShape:
     """A closed section along ``start -> target`` sized to its vertices ``verts`` (m, 3).
 
     The column spans the vertices' extent along the axis (so adjacent sections meet where their
     ground-truth labels meet); a free end is shortened by its cap so that the cap reaches the
     extreme vertex. The axis is moved to the centre of the vertices' cross-sections; radii are
     sqrt(2 * variance) along the principal directions of the cross-section coordinates between
-    ``start`` and ``target`` (exact for points spread evenly on an ellipse).
+    ``start`` and ``target`` (exact for points spread evenly on an ellipse); with ``size_whole``
+    over the whole extent (the head, whose direction joint lies inside it: sized on the neck
+    alone, the model would miss the back of the skull).
     """
     d = target - start
     reach = float(np.linalg.norm(d))
@@ -59,13 +61,18 @@ def section_from_vertices(name: str, start: np.ndarray, target: np.ndarray, vert
     q = verts - start
     t = q @ d
     t0, t1 = np.percentile(t, _EXTENT)
-    body = (t >= max(t0, 0.0)) & (t <= min(t1, reach))
+    body = (t >= max(t0, 0.0)) & (t <= (t1 if size_whole else min(t1, reach)))
     sel = q[body] if body.sum() >= 10 else q
     xy = np.column_stack([sel @ fx, sel @ fy])
     centre = xy.mean(axis=0)
     w, v = np.linalg.eigh(np.cov((xy - centre).T))
     radii = np.sqrt(2 * np.maximum(w[::-1], 1e-8))
     major = v[:, 1]
+    if size_whole:  # a head is no column: take its extent (2.5-97.5 percentiles) across the axis
+        along = (xy - centre) @ v[:, ::-1]
+        lo, hi = np.percentile(along, [2.5, 97.5], axis=0)
+        radii = (hi - lo) / 2
+        centre = centre + v[:, ::-1] @ ((hi + lo) / 2)
     frame_x = major[0] * fx + major[1] * fy
     base = start + centre[0] * fx + centre[1] * fy
     length = max(float(t1 - t0), 1e-3)
@@ -100,8 +107,14 @@ def fit_from_body(body) -> BodyFit:
         verts = v[body.vertex_section == j]
         if len(verts) < 10:
             continue
-        shape = section_from_vertices(name, np.asarray(joints[a], dtype=float),
-                                      np.asarray(joints[b], dtype=float), verts, free)
+        start, target = np.asarray(joints[a], dtype=float), np.asarray(joints[b], dtype=float)
+        if name == "head":  # the head joint sits forward of the neck: use the head's own principal axis nearest to it
+            c = verts - verts.mean(axis=0)
+            vecs = np.linalg.eigh(c.T @ c)[1]
+            along = vecs.T @ (target - start)
+            axis = vecs[:, np.argmax(np.abs(along))] * np.sign(along[np.argmax(np.abs(along))])
+            target = start + axis * np.linalg.norm(target - start)
+        shape = section_from_vertices(name, start, target, verts, free, size_whole=name == "head")
         sections[name] = shape
         residuals[name] = float(np.sqrt(np.mean(shape.coords(verts)[0] ** 2)))
     unfitted = tuple(s for s in SECTIONS if s not in sections)

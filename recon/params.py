@@ -117,6 +117,10 @@ class SurfaceParams:
         (paper silent; interior holes are not touched).
     min_section_points : int
         A section with fewer points is skipped with a warning (paper silent).
+    mesh_adopted : bool
+        Mesh the points that are farther than T_d from every model surface and got their section
+        from a neighbour (``adopt_unlabeled``: fingers, toes). False, as in the paper, which
+        clusters, and so meshes, only points within T_d: they keep their labels but are in no face.
     open_joints : bool
         Project a section's proximal end, where it joins its parent section at a joint, onto the
         extended column instead of a cap (paper 3.3 does so for open ends): its surface then ends
@@ -132,6 +136,7 @@ class SurfaceParams:
     max_edge_factor: float = 0.0    # paper 4.2: holes are covered (0 = no limit)
     hull_edge_factor: float = 4.0   # paper silent
     min_section_points: int = 10    # paper silent
+    mesh_adopted: bool = False      # paper 3: only points within T_d are clustered
     open_joints: bool = True        # paper 3.3 (open ends), applied at joints
     inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
 

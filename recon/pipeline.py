@@ -207,9 +207,15 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     member = cluster_points(p, fit, method, params.cluster, coords=coords)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
+    meshed = member
+    if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
+        from .cluster import section_widths, simple_clustering
+
+        far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
+        meshed = member & ~far[:, None]
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        faces, face_section, skipped = reconstruct_surfaces(p, member, fit, params.surface, vd,
+        faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
                                                             drop_inner=method == "proposed")
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)

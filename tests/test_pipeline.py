@@ -279,3 +279,41 @@ def test_shipped_posture_mesh_is_valid(name, scored):
     assert (c > 2).mean() < 0.005
     outward = np.einsum("ij,ij->i", n, s.gt_normal[f].mean(axis=1)) > 0
     assert area[outward].sum() > 0.95 * area.sum()
+
+
+# -- the command ----------------------------------------------------------------------------------
+def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsules):
+    import json
+
+    import trimesh
+
+    from benchmarks.cli import main
+
+    P, L, N, vd, fit, _ = capsules
+    cloud = tmp_path / "cloud.ply"
+    trimesh.PointCloud(P).export(cloud)
+    fit_json = tmp_path / "fit.json"
+    fit_json.write_text(json.dumps(fit.to_dict()))
+    out, png = tmp_path / "mesh.ply", tmp_path / "preview.png"
+    code = main(["reconstruct", str(cloud), "--out", str(out), "--fit", str(fit_json),
+                 "--preview", str(png), "--param", "t_d=0.3"])
+    assert code == 0
+    m = trimesh.load(out, process=False)
+    assert len(m.vertices) == len(P) and len(m.faces) > 1000
+    assert png.stat().st_size > 10_000
+
+
+def test_cli_user_errors_are_one_line(tmp_path, capsys, capsules):
+    import trimesh
+
+    from benchmarks.cli import main
+
+    cloud = tmp_path / "cloud.ply"
+    trimesh.PointCloud(capsules[0]).export(cloud)
+    for args, msg in [(["--param", "bogus=1"], "unknown parameter"), (["--param", "t_d"], "NAME=VALUE"),
+                      (["--fit", str(tmp_path / "none.json")], "no such file")]:
+        code = main(["reconstruct", str(cloud), "--out", str(tmp_path / "m.ply"), *args])
+        err = capsys.readouterr().err
+        assert code == 2 and msg in err and "Traceback" not in err
+    code = main(["reconstruct", str(tmp_path / "missing.ply"), "--out", str(tmp_path / "m.ply")])
+    assert code == 2
