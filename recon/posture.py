@@ -71,9 +71,10 @@ class FitParams:
     match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
                                            # each also with its roll from the legs (chosen)
+    match_min_section_score: float = 0.0   # 2.2: a limb section whose volume weight is below: unfitted (chosen)
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
-    match_directions: int = 400            # 2.3(2): limb direction candidates on a sphere (chosen)
-    match_beam: int = 8                    # 2.3(2): proximal directions kept per limb chain (chosen)
+    match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
+    match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
     match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
     match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
@@ -81,7 +82,7 @@ class FitParams:
     fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
     fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
     fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
-    fit_section_points: int = 800          # 2.3(2): points per section per round, subsampled (chosen)
+    fit_section_points: int = 500          # 2.3(2): points per section per round, subsampled (chosen)
     fit_max_shift: float = 0.04            # 2.3(2): largest axis move per round, m (chosen)
     fit_max_turn: float = 12.0             # 2.3(2): largest axis turn per round, degrees (chosen)
     fit_max_points: int = 30000            # 2.3(2): points used by the fine fit, subsampled (chosen)
@@ -122,10 +123,19 @@ def fibonacci_sphere(n: int, hemisphere: bool = False) -> np.ndarray:
     return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
+def _cross(a, b) -> np.ndarray:
+    """Cross product of (..., 3) arrays (np.cross is slow on small arrays)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
 def _perp(d: np.ndarray) -> np.ndarray:
     """(..., 3) a unit vector perpendicular to each unit vector ``d`` (..., 3)."""
     ref = np.where(np.abs(d[..., 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
-    u = np.cross(d, ref)
+    u = _cross(d, ref)
     return u / np.linalg.norm(u, axis=-1, keepdims=True)
 
 
@@ -146,7 +156,7 @@ def _unit(v):
 def _tangent_dir(d0: np.ndarray, a: float, b: float) -> np.ndarray:
     """Unit direction near ``d0`` moved by angles (a, b) radians in its tangent plane."""
     u = _perp(d0)
-    w = np.cross(d0, u)
+    w = _cross(d0, u)
     return _unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
 
 
@@ -204,14 +214,14 @@ _LIMB_T = _template(6, (0.0, 0.6), 6, h0=0.15)
 def _column_score(scorer: _Scorer, start, frames, length, radii, template) -> np.ndarray:
     """Mean weight inside columns: ``start`` (m, 3) or (3,), ``frames`` (m, 3, 3) rows x, y, axis."""
     loc = template * np.array([radii[0], radii[1], length])
-    pts = np.asarray(start)[..., None, :] + np.einsum("kj,mjl->mkl", loc, frames)
+    pts = np.asarray(start)[..., None, :] + loc @ frames
     return scorer.lookup(pts).mean(axis=-1)
 
 
 def _frames_from_dirs(d: np.ndarray) -> np.ndarray:
     """(m, 3, 3) frames (rows x, y, axis) for unit directions ``d`` (m, 3)."""
     u = _perp(d)
-    return np.stack([u, np.cross(d, u), d], axis=1)
+    return np.stack([u, _cross(d, u), d], axis=1)
 
 
 # -- coarse matching ----------------------------------------------------------------------------
@@ -224,6 +234,7 @@ class _Pose:
     body: StandardBody
     sections: dict
     score: float = 0.0
+    section_scores: dict = None   # mean volume weight of each limb section where it was placed
 
 
 def _torso_frames(R: np.ndarray) -> np.ndarray:
@@ -258,11 +269,11 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
     if starts is None:
         dirs = fibonacci_sphere(params.match_torso_directions, hemisphere=True)
         u = _perp(dirs)
-        w = np.cross(dirs, u)
+        w = _cross(dirs, u)
         rolls = np.linspace(0, np.pi, 6, endpoint=False)
         X = (u[:, None] * np.cos(rolls)[None, :, None] + w[:, None] * np.sin(rolls)[None, :, None]).reshape(-1, 3)
         Z = np.repeat(dirs, len(rolls), axis=0)
-        Y = np.cross(Z, X)
+        Y = _cross(Z, X)
         frames = np.stack([X, Y, Z], axis=1)
         cands = []
         for off in (-0.05, 0.0, 0.05):
@@ -310,7 +321,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
     def distal(elbow, d1, frames):
         # distal samples inside the proximal column weigh 0: no folding back over the same limb
         loc = _LIMB_T * np.array([r2[0], r2[1], L2])
-        pts = elbow + np.einsum("kj,mjl->mkl", loc, frames)
+        pts = elbow + loc @ frames
         w = scorer.lookup(pts)
         h = np.clip((pts - root) @ d1, 0.0, L1)
         inside = np.linalg.norm(pts - root - h[..., None] * d1, axis=-1) < r1[0] + r2[0]
@@ -348,7 +359,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
 
     simplex = np.vstack([np.zeros(4), np.eye(4) * 0.12])
     res = minimize(total, np.zeros(4), method="Nelder-Mead",
-                   options=dict(initial_simplex=simplex, maxfev=80, xatol=1e-3, fatol=1e-4))
+                   options=dict(initial_simplex=simplex, maxfev=60, xatol=1e-3, fatol=1e-4))
     return _tangent_dir(d1, *res.x[:2]), _tangent_dir(d2, *res.x[2:]), -res.fun
 
 
@@ -359,7 +370,7 @@ def _search_cone(scorer, start, axis, length, radii, frame_x, max_angle, n=120):
     dirs = np.vstack([axis, dirs])
     fx = frame_x - dirs * (dirs @ frame_x)[:, None]
     fx = _unit(fx)
-    F = np.stack([fx, np.cross(dirs, fx), dirs], axis=1)
+    F = np.stack([fx, _cross(dirs, fx), dirs], axis=1)
     s = _column_score(scorer, start, F, length, radii, _LIMB_T)
     i = int(np.argmax(s))
     return dirs[i], float(s[i])
@@ -389,6 +400,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
     L = _torso_len(body)
     pelvis = centre - 0.5 * L * ez
     secs = {}
+    fit_scores = {}
     total = 0.0
     Lw = body.section_length("waist")
     waist = _column("waist", pelvis, ez, Lw, body.radii("waist"), ex)
@@ -422,10 +434,13 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
         p = _column(prox, root, d1, body.section_length(prox), body.radii(kind_of(prox)), _perp(d1))
         q = _column(dist, p.end, d2, body.section_length(dist), body.radii(kind_of(dist)), _perp(d2))
         secs[prox], secs[dist] = p, q
+        for sec in (p, q):   # how well each section sits in the volume (before claiming it)
+            fit_scores[sec.name] = float(_column_score(scorer, sec.start, sec.frame[None], sec.length,
+                                                       sec.radii, _LIMB_T)[0])
         scorer.claim(p)
         scorer.claim(q)
         total += s
-    return _Pose(centre=centre, R=R, body=body, sections=secs, score=total)
+    return _Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores)
 
 
 def _chain_extent(points, pose: _Pose, dist: str) -> float | None:
@@ -484,7 +499,7 @@ def _roll_from_legs(points, centre, R, body: StandardBody) -> np.ndarray:
     x = x / np.linalg.norm(x)
     if x @ R[:, 0] < 0:
         x = -x
-    return np.column_stack([x, np.cross(ez, x), ez])
+    return np.column_stack([x, _cross(ez, x), ez])
 
 
 def _thick_core(vol: Volume) -> np.ndarray:
@@ -538,14 +553,17 @@ def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
         pose = best
         if stature is not None or rnd == params.match_rounds - 1:
             break
-        ratios = []
+        ratios = {}
         for prox, dist, *_ in LIMBS:
             e = _chain_extent(points, pose, dist)
             if e is not None:
-                ratios.append(e / body.limb_lengths(dist))
-        if not ratios:
+                ratios[dist] = e / body.limb_lengths(dist)
+        # legs first: a hand resting on a thigh makes an arm look far too long
+        legs = [v for k, v in ratios.items() if k.startswith("lower_leg")]
+        use = legs if len(legs) == 2 else list(ratios.values())
+        if not use:
             break
-        s = float(np.median(ratios))
+        s = float(np.median(use))
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
@@ -605,7 +623,7 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
 
         fr = base.frame
         u0 = _perp(base.axis)
-        w0 = np.cross(base.axis, u0)
+        w0 = _cross(base.axis, u0)
         a, b = base.radii
         L = base.length
         cap0, cap1 = base.caps
@@ -619,7 +637,7 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
             fx = fr[0] - d * (fr[0] @ d)
             fx = fx / np.linalg.norm(fx)
             if elliptic:
-                fx = fx * np.cos(x[4]) + np.cross(d, fx) * np.sin(x[4])
+                fx = fx * np.cos(x[4]) + _cross(d, fx) * np.sin(x[4])
             return start, d, fx
 
         def make(x):
@@ -630,7 +648,7 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
             # SectionShape.coords' r, inlined for speed (same formula)
             start, d, fx = pose(x)
             rel = points - start
-            X, Y, h = rel @ fx, rel @ np.cross(d, fx), rel @ d
+            X, Y, h = rel @ fx, rel @ _cross(d, fx), rel @ d
             e = np.where(h < 0, h, np.where(h > L, h - L, 0.0))
             c = np.where(h < 0, cap0, cap1)
             if not c0:
@@ -697,7 +715,7 @@ def _closest_on_axes(a: SectionShape, b: SectionShape):
     A, B, C = d1 @ d1, d1 @ d2, d2 @ d2
     D, E = d1 @ w, d2 @ w
     den = A * C - B * B
-    sin = float(np.linalg.norm(np.cross(d1, d2)))
+    sin = float(np.linalg.norm(_cross(d1, d2)))
     if den < 1e-9:
         return None, sin
     t = (B * E - C * D) / den
@@ -912,15 +930,21 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     # front and back from the data: relabel left/right when the provisional front was the back
     sign = _front_sign(work, secs, pose.R)
     coarse_secs = dict(pose.sections)
+    coarse_scores = dict(pose.section_scores or {})
     if sign < 0:
         secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in secs.items()}
         resid = {_swap_sides(k): v for k, v in resid.items()}
         counts = {_swap_sides(k): v for k, v in counts.items()}
         coarse_secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in coarse_secs.items()}
+        coarse_scores = {_swap_sides(k): v for k, v in coarse_scores.items()}
 
     cover = _section_cover(work, secs, params.fit_coverage_distance)
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
-                     or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover)
+                     or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
+                     or coarse_scores.get(n, 1.0) < params.match_min_section_score)
+    # a distal section hangs from its proximal one: without it, its position means nothing
+    unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
+        n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
     if "waist" in unfitted or "chest" in unfitted or len(unfitted) > 6:
         raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
                          f"body sections could be fitted")
