@@ -33,6 +33,9 @@ def register(sub) -> None:
                    help="local worker processes (default: every core); ignored with --scheduler")
     p.add_argument("--retry-failed", action="store_true",
                    help="also rerun jobs whose stored result is an error (default: skip them)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check the sweep file, print its size (jobs, scans, settings) and how many "
+                        "jobs DIR already holds, and run nothing")
     p.set_defaults(func=_sweep)
 
     r = sub.add_parser(
@@ -72,6 +75,16 @@ def _sweep(args) -> int:
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ws://")):
         raise BenchError(f"--scheduler {args.scheduler!r}: give an address like tcp://HOST:PORT")
     sweep = load_sweep(path)
+    if args.dry_run:
+        from .store import ResultStore
+
+        jobs = sweep.jobs()
+        stored = len({j.job_id for j in jobs} & ResultStore(args.out).finished())
+        print(f"sweep {sweep.name}: {len(jobs)} jobs = {len(sweep.bodies)} bodies x "
+              f"{len(sweep.seeds)} seeds x {len(sweep.scanner)} scanner settings x "
+              f"({len(sweep.methods)} methods x {len(sweep.recon)} recon settings, peers once); "
+              f"{len({j.scan_id for j in jobs})} scans; {stored} already stored in {args.out}")
+        return 0
     # SIGTERM ends the run like Ctrl-C: stored results stay, workers are told to stop
     signal.signal(signal.SIGTERM, _terminate)
     summary = run_sweep(sweep, args.out, scheduler=args.scheduler, workers=args.workers,

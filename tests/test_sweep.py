@@ -259,6 +259,16 @@ def test_a_dying_worker_stops_the_sweep_and_the_rerun_goes_past_it(tmp_path, toy
     assert len(table) == 4 and (table.status == "ok").sum() == 3
 
 
+def test_dry_run_counts_and_runs_nothing(tmp_path, toy, capsys):
+    from benchmarks.cli import main
+
+    path = write_sweep(tmp_path / "s.yaml", seeds=[0, 1])
+    assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--dry-run"]) == 0
+    out = capsys.readouterr().out
+    assert "16 jobs" in out and "8 scans" in out and "0 already stored" in out
+    assert not (tmp_path / "o").exists() and not (tmp_path / "scanlog").exists()
+
+
 def test_cli_user_errors_are_one_line(tmp_path, toy):
     bad = subprocess.run(_bodyscan("sweep", str(tmp_path / "none.yaml"), "--out", str(tmp_path)),
                          capture_output=True, text=True)
