@@ -6,36 +6,47 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    [`voxel_min`, `voxel_max`].
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
    model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
-   weighted n. To work for any posture we start from the cloud's centre of gravity but search the
-   torso's axis over a hemisphere of directions and its roll about the axis
-   (`match_torso_directions` x 6 rolls), score each on the volume (mean voxel weight inside the
-   column: n on contour, 1 inside, `match_empty_weight` outside, minus the mean weight of a ring
-   of samples beside the neck, which must be empty, minus `match_upright_prior` x (1 - cos tilt):
-   scanned people are mostly upright and a scanner knows its +z), then refine the best few by
-   Nelder-Mead over translation and rotation, and keep the one whose whole-body match scores best.
-3. Sections from the chest outwards: chest (about the chest joint), head (about the neck), then
-   thighs and lower legs, then upper arms and forearms (the paper does the arms before the legs; we
-   place the legs first because hanging hands reach down beside the thighs). Where the paper does not say how a limb's direction is
-   searched, each limb chain is searched on a sphere of `match_directions` directions for its proximal
-   section, the best `match_beam` of them are extended by the same search for the distal section
-   (elbow or knee bend at most `match_max_bend` degrees), and the best chain is refined by
-   Nelder-Mead. Voxels taken by sections already placed weigh 0, so a limb is not fitted into the
-   torso. The model's up/down along the torso axis is unknown for an arbitrary posture: both are
-   matched and the better total score wins, unless the torso is within 60 degrees of the vertical:
-   then its upper end is the one towards +z (clouds are in a +z up frame).
-4. Body size: the paper uses the average adult male. We measure each limb chain's length (root joint
-   to the farthest point along its distal section) and scale the model by their median ratio to the
-   standard, then match again (children and tall adults).
+   weighted n. To work for any posture we start from the centre of the thickest part of the volume
+   (deepest voxels; the cloud's centre of gravity leaves the body when the limbs are spread) and
+   search the torso's axis over a hemisphere of directions and its roll about the axis
+   (`match_torso_directions` x 6 rolls x 3 offsets along the axis), score each on the volume (mean
+   voxel weight inside the column: n on contour, 1 inside, `match_empty_weight` outside; minus the
+   mean weight of samples beside the neck, where a body is empty; minus `match_upright_prior` x
+   (1 - cos tilt): scanned people are mostly upright and a scanner knows its +z), refine the best
+   few by Nelder-Mead over translation and rotation, and keep, of the best
+   `match_torso_candidates` (each also with its roll taken from the two legs below it), the one
+   whose whole-body match scores best. The torso's radii are then measured on the points.
+3. Sections from the chest outwards: chest (about the chest joint, within 20 degrees of the torso),
+   head (about the neck), then thighs and lower legs, then upper arms and forearms (the paper does
+   the arms before the legs; we place the legs first because hanging hands reach down beside the
+   thighs). Where the paper does not say how a limb's direction is searched, each limb chain is
+   searched on a sphere of `match_directions` directions for its proximal section, the best
+   `match_beam` of them are extended by the same search for the distal section (elbow or knee bend
+   at most `match_max_bend` degrees, the limb pointing at most `match_max_adduction` across the
+   body), and the best chain is refined by Nelder-Mead. Voxels inside sections already placed weigh
+   `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. The
+   model's up/down along the torso axis: when the torso is within 60 degrees of the vertical its
+   upper end is the one towards +z (clouds are in a +z up frame); otherwise both are matched and
+   the better total score wins.
+4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
+   along the torso axis (at least `match_min_first_stature`); then each leg chain's length (hip to
+   the farthest point along its lower leg) is measured and, when the legs' median ratio to the
+   standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
-   adjusted by least squares on the point-to-surface distances, its radius set to the mean distance
-   of its points from the axis, and its free end (head top, fingertips, sole) found from the points
-   nearer the axis than `fit_end_threshold` times the radius (none: the end is open and the length
-   kept). Joints are then placed where adjacent axes meet (bent joints) or along the axis at the
-   model's proportions (straight joints).
+   adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
+   distance of its points from the axis, and its free end (head top, fingertips, sole) found from
+   the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
+   the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
+   axis at the model's proportions (straight joints); the whole model slides along the torso axis
+   so that the neck lies a standard head length below the detected crown.
 6. Front and back, hence left and right, come from the data, never from the scanner: feet point
    forward from the shins, knees bend backward, hips bend forward. A scan rotated about the vertical
    gives the same fit.
+7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
+   cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
+   a fit that explains fewer than `fit_min_coverage` of the points within `fit_coverage_distance`
+   is not a body (`ReconError`).
 """
 
 from __future__ import annotations
@@ -71,7 +82,7 @@ class FitParams:
     match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
                                            # each also with its roll from the legs (chosen)
-    match_min_section_score: float = 0.0   # 2.2: a limb section whose volume weight is below: unfitted (chosen)
+    match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
     match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
@@ -396,7 +407,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
 
     scorer = copy.copy(scorer_base)
     scorer.w = scorer_base.w.copy()
-    ex, ey, ez = R[:, 0], R[:, 1], R[:, 2]
+    ex, ez = R[:, 0], R[:, 2]
     L = _torso_len(body)
     pelvis = centre - 0.5 * L * ez
     secs = {}
@@ -512,7 +523,7 @@ def _thick_core(vol: Volume) -> np.ndarray:
     return vol.centres(core).mean(axis=0)
 
 
-def _coarse_match(points, scorer, params: FitParams, timings) -> _Pose:
+def _coarse_match(points, scorer, params: FitParams) -> _Pose:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds."""
     centroid = _thick_core(scorer.vol)
     stature = params.fit_stature if params.fit_stature > 0 else None
@@ -729,7 +740,6 @@ def _fine(points, pose: _Pose, params: FitParams):
     body = pose.body
     resid = {}
     counts = {}
-    parent = {c: p for (p, c) in _PARENTS}
     rng = np.random.default_rng(params.fit_seed)
     for it in range(max(1, params.fit_iterations)):
         names, k = _assign(points, secs, params.fit_near_distance)
@@ -752,13 +762,7 @@ def _fine(points, pose: _Pose, params: FitParams):
             new[name] = shp
             resid[name] = rms
         secs = _rejoin(new, secs, pose, body)
-    return secs, resid, counts, parent
-
-
-#: (parent, child) sections and the joint between them.
-_PARENTS = (("waist", "chest"), ("chest", "head"), ("chest", "upper_arm_l"), ("chest", "upper_arm_r"),
-            ("upper_arm_l", "forearm_l"), ("upper_arm_r", "forearm_r"), ("waist", "thigh_l"),
-            ("waist", "thigh_r"), ("thigh_l", "lower_leg_l"), ("thigh_r", "lower_leg_r"))
+    return secs, resid, counts
 
 
 def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
@@ -918,11 +922,11 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     times["voxelize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    pose = _coarse_match(work, scorer, params, times)
+    pose = _coarse_match(work, scorer, params)
     times["match"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    secs, resid, counts, _ = _fine(work, pose, params)
+    secs, resid, counts = _fine(work, pose, params)
     times["fine"] = time.perf_counter() - t0
 
     secs = _anchor_on_head_top(secs, pose.body, params)
