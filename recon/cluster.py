@@ -334,17 +334,6 @@ def _pairs(member, rows):
     return order[:, 0], order[:, 1]
 
 
-def joint_location(fit: BodyFit, a: int, b: int):
-    """(3,) position of the joint between adjacent sections a and b, or None when not adjacent."""
-    for (p, d), joint in ADJACENT.items():
-        if {SECTIONS.index(p), SECTIONS.index(d)} == {a, b}:
-            if joint in fit.joints:
-                return np.asarray(fit.joints[joint], dtype=float), d
-            if d in fit.sections:
-                return fit.sections[d].start, d
-    return None
-
-
 def at_joint_mask(points: np.ndarray, A: np.ndarray, B: np.ndarray, h: np.ndarray, fit: BodyFit,
                   joint_reach: float) -> np.ndarray:
     """(m,) bool: whether each two-section point (sections A, B) lies at the joint between them.

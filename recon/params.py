@@ -52,12 +52,10 @@ class ClusterParams:
     joint_reach : float
         A point is "at the joint" of two adjacent sections when it is nearer to the joint than
         this times the larger of the two widths (paper silent: it says "at a joint").
-    both_few : float
-        Joint rule: the neighbours kept in both sections are "few" below this fraction of the
-        neighbours (paper section 3.2, value not given).
     max_rounds : int
-        Rounds of the joint rule and of the three-or-more rule before the remaining points are
-        settled by their distance to the model (paper silent).
+        Rounds of the three-or-more rule, of the two-section rule and of label adoption before
+        the remaining points are settled by their distance to the model (paper silent; the joint
+        rule is solved exactly, see `recon.cluster.resolve_joints`).
     adopt_unlabeled : bool
         Points left in no section after refinement take the sections of their nearest labelled
         neighbour within the neighbour radius (paper silent; it leaves them out).
@@ -75,7 +73,6 @@ class ClusterParams:
     neighbor_spacing: float = 3.0   # paper silent
     seam_width: float = 1.5         # paper 3.2, spacings
     joint_reach: float = 0.75       # paper silent
-    both_few: float = 0.5           # paper 3.2: "sufficiently few"
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
 
@@ -91,7 +88,6 @@ class ClusterParams:
         _check(self.neighbor_spacing > 0, "neighbor_spacing", self.neighbor_spacing, "> 0")
         _check(self.joint_reach > 0, "joint_reach", self.joint_reach, "> 0")
         _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")
-        _check(0 <= self.both_few <= 1, "both_few", self.both_few, "a fraction in [0, 1]")
 
 
 @dataclass(frozen=True)
@@ -205,7 +201,12 @@ class ReconParams:
         """
         base = cls()
         stages = base.stages()
-        owner = {f.name: stage for stage, obj in stages.items() for f in fields(obj)}
+        owner = {}
+        for stage, obj in stages.items():
+            for f in fields(obj):
+                if f.name in owner:  # names must be unique across stages to be set flat
+                    raise ReconError(f"parameter {f.name!r} is defined by both {owner[f.name]} and {stage}")
+                owner[f.name] = stage
         changes: dict = {stage: {} for stage in stages}
         for name, value in (overrides or {}).items():
             if name not in owner:
