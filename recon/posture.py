@@ -102,6 +102,7 @@ class FitParams:
     fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
     fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
+    fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
     fit_seed: int = 0                      # random subsampling seed
 
@@ -798,8 +799,8 @@ def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> di
     """Slide the model along the torso axis so that the neck lies the standard head length below the
     detected top of the head (the crown is the best-measured landmark along the spine)."""
     h, w = secs["head"], secs["waist"]
-    if not h.closed[1]:
-        return secs
+    if not h.closed[1] or body.stature < params.fit_anchor_min_stature:
+        return secs   # children's heads are relatively larger: the adult head length does not hold
     top = h.end + h.caps[1] * h.axis
     neck = top - body.section_length("head") * h.axis
     shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
