@@ -27,8 +27,13 @@ class ClusterParams:
     t_n_factor : float
         T_n = the cell histogram's maximum frequency times this factor (paper section 4.2; the
         factor is lost in the text). A cell is single-peaked, and kept whole, when more than T_n
-        points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep over the
-        shipped postures (see ``benchmarks/perf_recon.py --sweep-tn``).
+        points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep
+        (``python -m benchmarks.perf_recon --sweep-tn --oracle``: paper scans of arms_close,
+        hands_on_hips, arm_across, seated, squat and standing, oracle posture; means of section
+        accuracy / spurious / bridging area fractions): 0 -> 0.916 / 0.057 / 0.0046,
+        0.25 -> 0.916 / 0.057 / 0.0046, 0.5 -> 0.916 / 0.057 / 0.0043, 1 -> 0.923 / 0.057 /
+        0.0046, always split -> 0.923 / 0.061 / 0.0045. The refinement matters little once the
+        multi-section rules run; 0.5 has the least bridging (1 gains accuracy on the squat only).
     refine_adjacent : bool
         Refinement may also split off points claimed by an adjacent section away from their
         joint (an arm against the chest below the shoulder); False: only non-adjacent sections.
