@@ -958,7 +958,8 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     D = np.min([v.distance(work) for v in fitted.values()], axis=0)
     explained = float(np.mean(D < params.fit_coverage_distance))
     if explained < params.fit_min_coverage:
-        raise ReconError(f"the cloud does not look like a human body: the fitted model explains only "
+        raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
+                         f"the fitted model explains only "
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     if unfitted:
