@@ -122,6 +122,9 @@ class SurfaceParams:
         Mesh the points that are farther than T_d from every model surface and got their section
         from a neighbour (``adopt_unlabeled``: fingers, toes). False, as in the paper, which
         clusters, and so meshes, only points within T_d: they keep their labels but are in no face.
+    workers : int
+        Threads triangulating the sections in parallel (Qhull releases the GIL); the result does
+        not depend on it. 1: one after another.
     open_joints : bool
         Project a section's proximal end, where it joins its parent section at a joint, onto the
         extended column instead of a cap (paper 3.3 does so for open ends): its surface then ends
@@ -139,6 +142,7 @@ class SurfaceParams:
     min_section_points: int = 10    # paper silent
     mesh_adopted: bool = False      # paper 3: only points within T_d are clustered
     open_joints: bool = True        # paper 3.3 (open ends), applied at joints
+    workers: int = 2                # not a method parameter: speed only
     inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
 
     def __post_init__(self):
@@ -147,6 +151,7 @@ class SurfaceParams:
         _check(self.max_edge_factor >= 0, "max_edge_factor", self.max_edge_factor, ">= 0 (0 = no limit)")
         _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
         _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
+        _check(int(self.workers) >= 1, "workers", self.workers, "an integer >= 1")
         _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 

@@ -409,6 +409,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     per = {}
     skipped = []
     spacing = median_spacing(points)
+    jobs = []
     for j, name in enumerate(SECTIONS):
         if name not in fit.sections:
             continue
@@ -421,8 +422,20 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         shape = fit.sections[name]
         if params.open_joints and _has_parent(name, fit):
             shape = shape.replace(closed=(False, shape.closed[1]))
-        f = section_surface(points[idx], shape, params, spacing)
-        per[j] = idx[f]
+        jobs.append((j, idx, shape))
+
+    def run(job):
+        j, idx, shape = job
+        return j, idx[section_surface(points[idx], shape, params, spacing)]
+
+    if params.workers > 1 and len(jobs) > 1:  # Qhull releases the GIL: sections in parallel
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=params.workers) as pool:
+            done = list(pool.map(run, jobs))
+    else:
+        done = [run(job) for job in jobs]
+    per = dict(done)
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
