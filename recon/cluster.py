@@ -422,25 +422,21 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
     from scipy.sparse.csgraph import dijkstra
 
     pos, nb = _neighbors(tree, points, rows, radius)
-    m = len(rows)
+    n, m = len(points), len(rows)
     count = member.sum(axis=1)
     w = np.linalg.norm(points[rows[pos]] - points[nb], axis=1) + 1e-9
     dist = np.full((m, 2), np.inf)
+    single = count[nb] == 1
     for j in np.unique(np.concatenate([A, B])):
         # the front of section j runs through the points that may belong to j
         mine = (A == j) | (B == j)
         e = mine[pos]
-        nodes, inv = np.unique(np.concatenate([rows[mine], nb[e]]), return_inverse=True)
-        a_id, b_id = inv[:mine.sum()], inv[mine.sum():]
-        row_id = np.full(m, -1)
-        row_id[mine] = a_id
-        k = len(nodes)
-        graph = coo_matrix((w[e], (row_id[pos[e]], b_id)), shape=(k, k)).tocsr()
-        src = np.unique(b_id[(count[nb[e]] == 1) & member[nb[e], j]])
+        graph = coo_matrix((w[e], (rows[pos[e]], nb[e])), shape=(n, n)).tocsr()
+        src = np.unique(nb[e][single[e] & member[nb[e], j]])
         if len(src) == 0:
             continue
-        d = dijkstra(graph, directed=False, indices=src, min_only=True)[a_id] * widths[j]
         sel = np.flatnonzero(mine)
+        d = dijkstra(graph, directed=False, indices=src, min_only=True)[rows[sel]] * widths[j]
         dist[sel, 0] = np.where(A[sel] == j, d, dist[sel, 0])
         dist[sel, 1] = np.where(B[sel] == j, d, dist[sel, 1])
     reached = np.isfinite(dist).any(axis=1)
