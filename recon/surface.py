@@ -6,10 +6,18 @@ angle from the cap's pole); an open end projects onto the extended column. Each 
 triangulated by `scipy.spatial.Delaunay` and the triangles are applied to the 3D points.
 
 Seams, as in the paper: the points within ``seam_overlap`` of theta = 0 are copied past 2*pi (and
-back), the column and cap charts overlap by ``cap_overlap`` radii; afterwards a triangle is kept
-by the chart that owns its centroid (column: ``0 <= u < 2*pi*R`` and ``0 <= v <= length``; cap:
-beyond the column's end), copies are dropped, and cap triangles whose centroid falls on a kept
-column triangle are removed as overlapping.
+back; at most `SEAM_SPACINGS` point spacings), triangulated with the others, and a column
+triangle is kept only when its centroid lies in ``0 <= u < 2*pi*R`` (and, at a closed end,
+``0 <= v <= length``), so each seam triangle is kept once; triangles around half the column or
+more (hull artefacts of the copies) are dropped. The column and cap charts overlap: a cap chart
+holds the points beyond the column's end that no column triangle uses, plus the vertices of the
+column's boundary loop at that end (the overlap), and keeps the triangles inside that loop, so
+the cap closes the column along shared edges; overlapping triangles are not kept.
+
+Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
+convex-hull slivers), `merge_sections` joins the sections through their shared points and
+removes the triangles made only of multi-section points (paper 3.3), and `orient_faces` turns
+every triangle outward.
 """
 
 from __future__ import annotations
