@@ -238,13 +238,25 @@ MAX_NEIGHBORS = 32
 
 
 def _neighbors(tree, points, rows, radius, k=MAX_NEIGHBORS):
-    """Neighbour pairs of ``rows`` (excluding themselves): (row position, neighbour index) arrays."""
+    """Neighbour pairs of ``rows`` (excluding themselves), grouped by row in ``rows`` order.
+
+    Returns (row position, neighbour index, distance in metres) arrays of the pairs.
+    """
     k = min(k + 1, tree.n)
-    d, nb = tree.query(points[rows], k=k, distance_upper_bound=radius)
+    d, nb = tree.query(points[rows], k=k, distance_upper_bound=radius, workers=-1)
     d, nb = d.reshape(len(rows), k), nb.reshape(len(rows), k)
     ok = np.isfinite(d) & (nb != rows[:, None])
     pos = np.broadcast_to(np.arange(len(rows))[:, None], ok.shape)[ok]
-    return pos, nb[ok]
+    return pos, nb[ok], d[ok]
+
+
+def _edges_of(pos, m, sel):
+    """Indices of the pairs (grouped by row, from `_neighbors`) whose row position is in ``sel``."""
+    cnt = np.bincount(pos, minlength=m)
+    start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    c = cnt[sel]
+    first = np.repeat(start[sel] - np.concatenate([[0], np.cumsum(c)[:-1]]), c)
+    return first + np.arange(int(c.sum()))
 
 
 def adopt_unlabeled(member: np.ndarray, points: np.ndarray, radius: float, max_rounds: int = 20,
@@ -268,14 +280,15 @@ def adopt_unlabeled(member: np.ndarray, points: np.ndarray, radius: float, max_r
     d, nb = d.reshape(len(lone), k), nb.reshape(len(lone), k)
     ok = np.isfinite(d)
     nb = np.where(ok, nb, 0)
+    labelled = out.any(axis=1)
     for _ in range(max_rounds):
-        labelled = out.any(axis=1)
         has = ok & labelled[nb]
         take = has.any(axis=1) & ~labelled[lone]
         if not take.any():
             break
         first = nb[np.arange(len(lone)), has.argmax(axis=1)]
         out[lone[take]] = out[first[take]]
+        labelled[lone[take]] = True
     return out
 
 
@@ -363,28 +376,31 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
     silent). Decisions are taken in rounds, the points with neighbours of both kinds first, so that
     the others see settled neighbours.
     """
-    pos, nb = _neighbors(tree, points, rows, radius)
-    count0 = member.sum(axis=1)
+    pos, nb, _ = _neighbors(tree, points, rows, radius)
+    count = member.sum(axis=1)
     fallback = np.zeros(NS)
     for j in range(NS):
-        only = member[:, j] & (count0 == 1)
+        only = member[:, j] & (count == 1)
         if only.any():
             fallback[j] = np.median(r[only, j])
     m = len(rows)
+    ra, rb = r[nb, A[pos]], r[nb, B[pos]]
+    r_a, r_b = r[rows, A], r[rows, B]
     todo = np.ones(m, dtype=bool)
     for round_ in range(max_rounds + 1):
-        count = member.sum(axis=1)
+        live = todo[pos]                  # only the pairs of undecided points matter
+        pos, nb, ra, rb = pos[live], nb[live], ra[live], rb[live]
         only_a = member[nb, A[pos]] & (count[nb] == 1)
         only_b = member[nb, B[pos]] & (count[nb] == 1)
         na = np.bincount(pos, weights=only_a, minlength=m)
         nbb = np.bincount(pos, weights=only_b, minlength=m)
-        sa = np.bincount(pos, weights=np.where(only_a, r[nb, A[pos]], 0.0), minlength=m)
-        sb = np.bincount(pos, weights=np.where(only_b, r[nb, B[pos]], 0.0), minlength=m)
+        sa = np.bincount(pos, weights=np.where(only_a, ra, 0.0), minlength=m)
+        sb = np.bincount(pos, weights=np.where(only_b, rb, 0.0), minlength=m)
         with np.errstate(invalid="ignore", divide="ignore"):
             mean_a = np.where(na > 0, sa / na, fallback[A])
             mean_b = np.where(nbb > 0, sb / nbb, fallback[B])
-        ea = np.abs(r[rows, A] - mean_a)
-        eb = np.abs(r[rows, B] - mean_b)
+        ea = np.abs(r_a - mean_a)
+        eb = np.abs(r_b - mean_b)
         last = round_ == max_rounds
         decided = todo & (((na > 0) & (nbb > 0)) | last)
         if not decided.any():  # nobody has both kinds: let those with one kind go
@@ -395,6 +411,7 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
         to_b = decided & (ea > eb)
         member[rows[to_a], B[to_a]] = False
         member[rows[to_b], A[to_b]] = False
+        count[rows[decided]] = 1
         todo &= ~decided
         if not todo.any():
             return
@@ -418,25 +435,39 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
     one-point-wide seam that stitches the surfaces.
     Points that no front reaches go to the section whose surface is nearer (relative to width).
     """
-    from scipy.sparse import coo_matrix
+    from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
 
-    pos, nb = _neighbors(tree, points, rows, radius)
+    pos, nb, w = _neighbors(tree, points, rows, radius)
     n, m = len(points), len(rows)
     count = member.sum(axis=1)
-    w = np.linalg.norm(points[rows[pos]] - points[nb], axis=1) + 1e-9
+    w = w + 1e-9
     dist = np.full((m, 2), np.inf)
-    single = count[nb] == 1
+    local = np.full(n, -1, dtype=np.int64)
     for j in np.unique(np.concatenate([A, B])):
         # the front of section j runs through the points that may belong to j
-        mine = (A == j) | (B == j)
-        e = mine[pos]
-        graph = coo_matrix((w[e], (rows[pos[e]], nb[e])), shape=(n, n)).tocsr()
-        src = np.unique(nb[e][single[e] & member[nb[e], j]])
+        sel = np.flatnonzero((A == j) | (B == j))
+        e = _edges_of(pos, m, sel)
+        nbe = nb[e]
+        src = nbe[(count[nbe] == 1) & member[nbe, j]]
         if len(src) == 0:
             continue
-        sel = np.flatnonzero(mine)
-        d = dijkstra(graph, directed=False, indices=src, min_only=True)[rows[sel]] * widths[j]
+        # a compact graph: the points of sel first (their pairs are grouped in sel's order), then
+        # the other neighbours
+        flag = np.zeros(n, dtype=bool)
+        flag[nbe] = True
+        flag[rows[sel]] = False
+        extra = np.flatnonzero(flag)
+        local[rows[sel]] = np.arange(len(sel))
+        local[extra] = len(sel) + np.arange(len(extra))
+        size = len(sel) + len(extra)
+        indptr = np.concatenate([[0], np.cumsum(np.bincount(pos[e], minlength=m)[sel]),
+                                 np.full(len(extra), len(e))])
+        graph = csr_matrix((w[e], local[nbe], indptr), shape=(size, size))
+        d = dijkstra(graph, directed=False, indices=np.unique(local[src]), min_only=True)[:len(sel)]
+        d = d * widths[j]
+        local[rows[sel]] = -1
+        local[extra] = -1
         dist[sel, 0] = np.where(A[sel] == j, d, dist[sel, 0])
         dist[sel, 1] = np.where(B[sel] == j, d, dist[sel, 1])
     reached = np.isfinite(dist).any(axis=1)
@@ -524,6 +555,7 @@ def cluster_points(points: np.ndarray, fit: BodyFit, method: str = "proposed",
     params : ClusterParams
     coords : tuple of three (n, 11) arrays, optional
         Precomputed `section_coordinates`.
+    tree : scipy.spatial.cKDTree of ``points``, optional
 
     Returns
     -------

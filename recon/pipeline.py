@@ -204,7 +204,12 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     coords = section_coordinates(p, fit, margin=params.cluster.t_d * widest + 0.01)
     times["coords"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    member = cluster_points(p, fit, method, params.cluster, coords=coords)
+    from scipy.spatial import cKDTree
+
+    from .surface import median_spacing
+
+    tree = cKDTree(p)
+    member = cluster_points(p, fit, method, params.cluster, coords=coords, tree=tree)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     meshed = member
@@ -216,7 +221,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
-                                                            drop_inner=method == "proposed")
+                                                            drop_inner=method == "proposed",
+                                                            spacing=median_spacing(p, tree=tree))
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = time.perf_counter() - t0
