@@ -417,7 +417,55 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
             return
 
 
-def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None):
+#: A joint further than this many mean radii of the proximal section from its axis is a side joint.
+SIDE_JOINT = 0.7
+
+
+def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
+                      reach: float) -> np.ndarray:
+    """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
+
+    The plane of the joint between a proximal section P and a distal one D passes through the
+    end of D at the joint, with the bisector of the two axes as normal (P's axis toward the joint
+    plus D's axis away from it: the plane across a straight limb, the mitre of a bent one). The
+    score is the signed distance to it (positive on D's side) over ``reach`` times D's width,
+    clipped to [-1, 1]. At a side joint, where D leaves P through its side rather than its end
+    (the joint is further than `SIDE_JOINT` mean radii from P's axis: shoulders, hips), the
+    boundary is no plane across an axis, and the score is 0.
+
+    Parameters
+    ----------
+    points : (m, 3) float, metres
+    prox, dist : (m,) int
+        Proximal and distal section of each point's joint (indices into `recon.model.SECTIONS`).
+    fit : BodyFit
+    reach : float
+        Fraction of the distal section's width at which the score saturates.
+    """
+    out = np.zeros(len(points))
+    for (p, d), joint in ADJACENT.items():
+        ip, idd = SECTIONS.index(p), SECTIONS.index(d)
+        sel = np.flatnonzero((prox == ip) & (dist == idd))
+        if len(sel) == 0 or p not in fit.sections or d not in fit.sections:
+            continue
+        P, D = fit.sections[p], fit.sections[d]
+        j = fit.joints.get(joint, D.start) if fit.joints else D.start
+        along = (j - P.start) @ P.axis
+        if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
+            continue  # a side joint: no plane
+        toward = P.axis if along > P.length / 2 else -P.axis
+        at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
+        away = D.axis if at_start else -D.axis
+        normal = toward + away
+        n = np.linalg.norm(normal)
+        normal = normal / n if n > 1e-3 else away
+        origin = D.start if at_start else D.end
+        out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
+    return out
+
+
+def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
+                   fit=None, plane_weight=0.0, plane_reach=0.3):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -434,6 +482,13 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
     of the distal one within ``seam_width`` (default: the neighbour radius) stay in both: a
     one-point-wide seam that stitches the surfaces.
     Points that no front reaches go to the section whose surface is nearer (relative to width).
+
+    With ``plane_weight`` > 0 (and ``fit``), the model's joint plane also votes (paper silent):
+    a point goes to the distal section D, rather than the proximal P, when
+    ``(f_P - f_D) / (f_P + f_D) + plane_weight * s > 0``, with ``f`` the width-scaled front
+    distances above and ``s`` the `joint_plane_score` (reach ``plane_reach``). The fronts alone
+    put the seam where the overlap's geometry says; the plane corrects them where a section's
+    overlap reaches far across a narrow neck or knee.
     """
     from scipy.sparse import csr_matrix
     from scipy.sparse.csgraph import dijkstra
@@ -474,6 +529,17 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
     sd = _scaled_distance(r[rows], widths)
     closer_a = sd[np.arange(m), A] <= sd[np.arange(m), B]
     choice = np.where(reached, np.where(dist[:, 0] <= dist[:, 1], A, B), np.where(closer_a, A, B))
+    if plane_weight > 0 and fit is not None:
+        prox = _PROXIMAL[A, B]
+        distal = np.where(prox == A, B, A)
+        f_p = np.where(prox == A, dist[:, 0], dist[:, 1])
+        f_d = np.where(prox == A, dist[:, 1], dist[:, 0])
+        with np.errstate(invalid="ignore"):
+            front = np.where(np.isinf(f_p) & np.isinf(f_d), 0.0,
+                             np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
+                                                                     (f_p - f_d) / (f_p + f_d + 1e-12))))
+        vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach)
+        choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
     other = np.where(choice == A, B, A)
@@ -529,7 +595,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     if at.any():
         resolve_joints(out, points, r, rows[at], A[at], B[at], radius, tree, widths,
                        seam_width=radius * params.seam_width / params.neighbor_spacing
-                       if params.neighbor_radius == 0 else params.seam_width * radius / 3.0)
+                       if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
+                       fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d)
     return out
 
 

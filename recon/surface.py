@@ -337,6 +337,23 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     return faces
 
 
+def _child_end(name: str, fit: BodyFit, present) -> list:
+    """Ends (0: start, 1: end) of section ``name`` where a present child section continues it
+    (an end joint: the joint lies within `recon.cluster.SIDE_JOINT` mean radii of its axis)."""
+    from .cluster import SIDE_JOINT
+
+    P = fit.sections[name]
+    ends = []
+    for (p, d), joint in ADJACENT.items():
+        if p != name or d not in present or not fit.joints or joint not in fit.joints:
+            continue
+        j = np.asarray(fit.joints[joint], dtype=float)
+        along = (j - P.start) @ P.axis
+        if np.linalg.norm(j - P.start - along * P.axis) <= SIDE_JOINT * float(P.radii.mean()):
+            ends.append(1 if along > P.length / 2 else 0)
+    return ends
+
+
 def _has_parent(name: str, fit: BodyFit) -> bool:
     """Whether ``name`` is the distal section of a joint whose proximal section is fitted."""
     return any(d == name and p in fit.sections for p, d in ADJACENT)
@@ -421,7 +438,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     view_dir : (n, 3) or (3,) float, optional
         Unit directions toward the sensor, for orientation.
     drop_inner : bool
-        Remove triangles made only of points in several sections (see `merge_sections`).
+        Remove triangles made only of points in several sections (see `merge_sections`) and,
+        with ``params.open_joint_ends``, leave open the ends where a child section continues
+        (both keep the inside of the body out of the surface).
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
 
@@ -447,9 +466,16 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
             skipped.append(name)
             continue
         shape = fit.sections[name]
-        if params.open_joints and _has_parent(name, fit):
-            shape = shape.replace(closed=(False, shape.closed[1]))
         jobs.append((j, idx, shape))
+    present = {SECTIONS[j] for j, _, _ in jobs}
+    for k, (j, idx, shape) in enumerate(jobs):
+        closed = list(shape.closed)
+        if params.open_joints and _has_parent(shape.name, fit):
+            closed[0] = False
+        if params.open_joint_ends and drop_inner:  # a way of removing the inside (paper 3.3)
+            for end in _child_end(shape.name, fit, present):
+                closed[end] = False
+        jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
 
     def run(job):
         j, idx, shape = job

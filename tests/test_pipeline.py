@@ -96,7 +96,10 @@ def test_no_triangle_joins_an_arm_to_the_torso_2cm_away(capsules):
 def test_capsule_body_clustering_and_surface_against_truth(capsules):
     P, L, N, vd, fit, recs = capsules
     rec = recs["proposed"]
-    assert rec.point_sections[np.arange(len(P)), L].mean() > 0.95
+    # 0.954 with the paper's joint rule alone (joint_plane_weight=0); the joint plane gives the
+    # capsules' domes around a narrower child (chest around the head, thigh around the lower leg)
+    # to the child, which loses 1.3 points here but gains 0.4-3 on every shipped posture
+    assert rec.point_sections[np.arange(len(P)), L].mean() > 0.935
     assert (rec.point_sections.sum(axis=1) <= 2).all()
     v = rec.vertices[rec.faces]
     area = 0.5 * np.linalg.norm(np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0]), axis=1)
@@ -243,9 +246,7 @@ def _score(name, cache):
 
 #: Known failures, kept visible: (posture, reason).
 KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: adjacent sections, so "
-                           "neither refinement nor the joint rule separates them (armpit bridging ~0.7 %)",
-         "squat": "deep knee bend: thigh, lower leg and waist fold onto each other; the truth is among a "
-                  "point's sections for only ~87 % of the points"}
+                           "neither refinement nor the joint rule separates them (armpit bridging ~0.8 %)"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN[n], strict=True))
