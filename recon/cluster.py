@@ -310,29 +310,34 @@ def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths:
     from scipy.spatial import cKDTree
 
     out = member.copy()
+    count = out.sum(axis=1)
+    many0 = np.flatnonzero(count >= 3)
+    if len(many0) == 0:
+        return out
     tree = tree if tree is not None else cKDTree(points)
     k = min(k, len(points))
+    _, nb0 = tree.query(points[many0], k=k, workers=-1)   # counts only fall: one query will do
+    nb0 = nb0.reshape(len(many0), k)
     for _ in range(max_rounds):
-        count = out.sum(axis=1)
-        many = np.flatnonzero(count >= 3)
-        if len(many) == 0:
+        still = count[many0] >= 3
+        if not still.any():
             return out
-        _, nb = tree.query(points[many], k=k)
-        nb = nb.reshape(len(many), k)
+        many, nb = many0[still], nb0[still]
         fewer = (count[nb] < count[many][:, None]) & (nb != many[:, None])
         has = fewer.any(axis=1)
         if not has.any():
             break
-        first = nb[np.arange(len(many)), fewer.argmax(axis=1)]
-        new = out.copy()
-        new[many[has]] = out[first[has]]
+        first = nb[np.arange(len(many)), fewer.argmax(axis=1)][has]
+        new = out[first]                      # all copies from the labels before this round
         # a copy that leaves the point in no section is no help: keep its own labels then
-        emptied = ~new[many].any(axis=1)
-        new[many[emptied]] = out[many[emptied]]
-        if np.array_equal(new, out):
+        ok = new.any(axis=1)
+        tgt, new = many[has][ok], new[ok]
+        changed = (out[tgt] != new).any(axis=1)
+        if not changed.any():
             break
-        out = new
-    many = np.flatnonzero(out.sum(axis=1) >= 3)
+        out[tgt] = new
+        count[tgt] = new.sum(axis=1)
+    many = np.flatnonzero(count >= 3)
     if len(many):
         sd = np.where(out[many], _scaled_distance(r[many], widths), np.inf)
         best = np.argsort(sd, axis=1)[:, :2]
