@@ -290,8 +290,9 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
 
 def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k,) area of each face, square metres."""
-    p = points[faces]
-    return 0.5 * np.linalg.norm(np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), axis=1)
+    p0 = points[faces[:, 0]]
+    c = np.cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
+    return 0.5 * np.sqrt(np.einsum("ij,ij->i", c, c))
 
 
 def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
@@ -319,19 +320,23 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     faces = faces.copy()
     if len(faces) == 0:
         return faces
-    p = points[faces]
-    normal = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    ref = np.zeros_like(normal)
+    p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
+    normal = np.cross(p1 - p0, p2 - p0)
     unclear = np.ones(len(faces), dtype=bool)
     if view_dir is not None:
         vd = np.asarray(view_dir, dtype=float)
-        mean = vd[faces].mean(axis=1) if vd.ndim == 2 else np.broadcast_to(vd, ref.shape)
-        unclear = np.einsum("ij,ij->i", mean, mean) < min_agreement ** 2
-        ref[~unclear] = mean[~unclear]
+        if vd.ndim == 2:  # the sum of the three directions: 3 times their mean
+            ref = vd[faces[:, 0]] + vd[faces[:, 1]] + vd[faces[:, 2]]
+            unclear = np.einsum("ij,ij->i", ref, ref) < (3 * min_agreement) ** 2
+        else:
+            ref = np.repeat(vd[None, :], len(faces), axis=0)
+            unclear = np.full(len(faces), float(vd @ vd) < min_agreement ** 2)
+    else:
+        ref = np.zeros_like(normal)
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(unclear & (face_section == j))
         if len(sel) and name in fit.sections:
-            ref[sel] = model_outward(fit.sections[name], p[sel].mean(axis=1))
+            ref[sel] = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
     return faces
@@ -369,7 +374,7 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
     out = np.zeros(len(faces), dtype=bool)
     if len(faces) == 0:
         return out
-    cen = points[faces].mean(axis=1)
+    cen = (points[faces[:, 0]] + points[faces[:, 1]] + points[faces[:, 2]]) / 3
     adj = adjacency_matrix()
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(face_section == j)
