@@ -134,8 +134,8 @@ class SurfaceParams:
         from a neighbour (``adopt_unlabeled``: fingers, toes). False, as in the paper, which
         clusters, and so meshes, only points within T_d: they keep their labels but are in no face.
     workers : int
-        Threads triangulating the sections in parallel (Qhull releases the GIL); the result does
-        not depend on it. 1: one after another.
+        Threads triangulating the sections in parallel (numpy and Qhull release the GIL); the
+        result does not depend on it. 1: one after another.
     open_joints : bool
         Project a section's proximal end, where it joins its parent section at a joint, onto the
         extended column instead of a cap (paper 3.3 does so for open ends): its surface then ends

@@ -3,7 +3,8 @@
 Each section's points are projected onto its model surface: onto the column as ``u = R*theta,
 v = h``, onto a closed cap as ``u = R*phi*cos(theta), v = R*phi*sin(theta)`` (``phi`` the polar
 angle from the cap's pole); an open end projects onto the extended column. Each chart is
-triangulated by `scipy.spatial.Delaunay` and the triangles are applied to the 3D points.
+triangulated in 2D (Shewchuk's Triangle when the ``triangle`` package is installed, else
+`scipy.spatial.Delaunay`) and the triangles are applied to the 3D points.
 
 Seams, as in the paper: the points within ``seam_overlap`` of theta = 0 are copied past 2*pi (and
 back; at most `SEAM_SPACINGS` point spacings), triangulated with the others, and a column
@@ -486,7 +487,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         j, idx, shape = job
         return j, idx[section_surface(points[idx], shape, params, spacing)]
 
-    if params.workers > 1 and len(jobs) > 1:  # Qhull releases the GIL: sections in parallel
+    if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(max_workers=params.workers) as pool:
