@@ -145,3 +145,24 @@ def test_params_overrides_resolve_names_and_reject_bad_ones():
         ReconParams.from_overrides({"mesh_h": "ten"})
     with pytest.raises(ReconError, match="mesh_h"):
         ReconParams.from_overrides({"mesh_h": 2.5})
+
+
+def test_joint_plane_score_is_the_mitre_of_the_axes():
+    """A bent knee: the plane bisects the two axes at the joint; a side joint (hip) has none."""
+    knee = np.array([0.1, 0, 0.5])
+    thigh = SectionShape("thigh_l", [0.1, 0, 0.9], knee, [0.07, 0.07], X)
+    shin = SectionShape("lower_leg_l", knee, knee + [0, -0.4, 0], [0.05, 0.05], X)   # bent 90 deg
+    waist = SectionShape("waist", [0, 0, 1.2], [0, 0, 0.9], [0.15, 0.1], X)
+    fit = BodyFit(sections={"thigh_l": thigh, "lower_leg_l": shin, "waist": waist},
+                  joints={"knee_l": knee, "hip_l": np.array([0.1, 0, 0.9])})
+    # mitre normal (down + forward) / sqrt(2): signed distance d along it, score d / (0.3 * width)
+    n = np.array([0, -1.0, -1.0]) / np.sqrt(2)
+    d = np.array([-0.02, -0.005, 0.005, 0.02, 0.5])
+    side = np.cross(n, [1.0, 0, 0])                    # along the plane: no effect
+    pts = knee + d[:, None] * n + 0.03 * side
+    k, s = I["thigh_l"], I["lower_leg_l"]
+    score = C.joint_plane_score(pts, np.full(5, k), np.full(5, s), fit, 0.3)
+    assert np.allclose(score, np.clip(d / (0.3 * shin.width), -1, 1))
+    # the hip lies a whole radius off the waist's axis: a side joint, no plane
+    hip = C.joint_plane_score(pts, np.full(5, I["waist"]), np.full(5, k), fit, 0.3)
+    assert np.all(hip == 0)

@@ -133,3 +133,18 @@ def test_small_section_is_skipped_with_a_warning():
     with pytest.warns(UserWarning, match="head"):
         faces, sec, skipped = S.reconstruct_surfaces(P, member, fit)
     assert skipped == ["head"] and len(faces) > 1000 and (sec == SECTIONS.index("thigh_l")).all()
+
+
+def test_delaunay_triangle_and_qhull_agree(monkeypatch):
+    """Points in general position have one Delaunay triangulation: Triangle and Qhull agree."""
+    import sys
+
+    from recon.surface import _delaunay
+
+    pytest.importorskip("triangle")
+    uv = np.random.default_rng(3).random((300, 2))
+    fast = _delaunay(uv)
+    monkeypatch.setitem(sys.modules, "triangle", None)   # import fails: the scipy fallback
+    slow = _delaunay(uv)
+    assert set(map(tuple, np.sort(fast, axis=1))) == set(map(tuple, np.sort(slow, axis=1)))
+    assert _delaunay(np.array([[0.0, 0], [1, 1], [2, 2]])) is None   # collinear: no triangle
