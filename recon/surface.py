@@ -225,11 +225,12 @@ def section_surface(points: np.ndarray, shape: SectionShape,
         simp = _delaunay(uv)
         if simp is not None:
             faces = sel[src[simp]]
-            cen = uv[simp].mean(axis=1)
-            own = (cen[:, 0] >= 0) & (cen[:, 0] < TWO_PI * R) & (cen[:, 1] >= h_lo) & (cen[:, 1] <= h_hi)
+            u, v = uv[:, 0][simp], uv[:, 1][simp]
+            cu, cv = u.sum(axis=1) / 3, v.sum(axis=1) / 3
+            own = (cu >= 0) & (cu < TWO_PI * R) & (cv >= h_lo) & (cv <= h_hi)
             # a triangle around half the column or more is a hull artefact that would close an
             # open end into a fan (its copies make the seam region look like a closed loop)
-            narrow = np.ptp(uv[simp][:, :, 0], axis=1) < np.pi * R
+            narrow = u.max(axis=1) - u.min(axis=1) < np.pi * R
             parts.append(faces[own & narrow])
     # cap charts: each fills the column's end loop
     col_faces = parts[0] if parts else np.zeros((0, 3), dtype=np.int64)
@@ -273,10 +274,13 @@ def _end_loops(faces: np.ndarray, h: np.ndarray, length: float):
     """Vertices of the boundary edges of column ``faces`` near the start and near the end."""
     if len(faces) == 0:
         return [np.zeros(0, dtype=np.int64)] * 2
-    e = np.concatenate([faces[:, [0, 1]], faces[:, [1, 2]], faces[:, [2, 0]]])
-    key = edge_keys(faces).T.ravel()
-    u, first, c = np.unique(key, return_index=True, return_counts=True)
-    b = e[first[c == 1]]
+    n = int(faces.max()) + 1
+    key = np.sort(edge_keys(faces).ravel())
+    single = np.ones(len(key), dtype=bool)        # keys seen once: boundary edges
+    dup = key[1:] == key[:-1]
+    single[1:] &= ~dup
+    single[:-1] &= ~dup
+    b = np.column_stack([key[single] // n, key[single] % n])
     hb = h[b].mean(axis=1)
     return [np.unique(b[hb < length / 2]), np.unique(b[hb >= length / 2])]
 
