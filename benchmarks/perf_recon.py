@@ -16,7 +16,9 @@ about 600 thousand points on the standing body with the paper's two heads).
 
 ``--sweep-tn`` instead reconstructs `paper` scans of several bodies for each T_n factor and prints
 the mean section accuracy, spurious area fraction and bridging area fraction (benchmarks.metrics),
-the way the default of ``ClusterParams.t_n_factor`` was chosen.
+the way the default of ``ClusterParams.t_n_factor`` was chosen. ``--sweep NAME`` does the same for
+any parameter (accuracy: truth among the point's sections), e.g. ``--sweep joint_plane_weight
+--factors 0,0.5,1,2 --bodies <all shipped> --oracle``, the way its default was chosen.
 """
 
 from __future__ import annotations
@@ -44,8 +46,9 @@ def time_scan(points, view_dir, method, fit, repeat):
     return best, rec
 
 
-def sweep_tn(bodies, factors, oracle: bool) -> None:
-    """Print section accuracy / spurious / bridging per T_n factor, averaged over ``bodies``."""
+def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
+    """Print section accuracy / spurious / bridging per value of the parameter ``name`` (default
+    the T_n factor), averaged over ``bodies``."""
     import numpy as np
 
     from poses import load_body
@@ -57,24 +60,25 @@ def sweep_tn(bodies, factors, oracle: bool) -> None:
     from .oracle import fit_from_body
 
     rows = {f: [] for f in factors}
-    for name in bodies:
-        body = load_body(name)
+    for body_name in bodies:
+        body = load_body(body_name)
         s = scan(body, preset("paper"))
         truth = GroundTruth.from_body(body, MetricParams(n_samples=2000))
         fit = fit_from_body(body) if oracle else estimate_posture(s.points, view_dir=s.view_dir)
         for f in factors:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                rec = reconstruct(s.points, "proposed", ReconParams.from_overrides({"t_n_factor": f}),
+                rec = reconstruct(s.points, "proposed", ReconParams.from_overrides({name: f}),
                                   view_dir=s.view_dir, fit=fit)
             tf = s.gt_face[rec.faces]
-            acc = section_accuracy(rec.point_sections, s.gt_section)["section_accuracy"]
+            acc = section_accuracy(rec.point_sections, s.gt_section)[
+                "section_accuracy_any" if name != "t_n_factor" else "section_accuracy"]
             sp = spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"]
             br = bridging(rec.vertices, rec.faces, tf, truth, truth.params)["bridging_area_fraction"]
             rows[f].append((acc, sp, br))
-            print(f"{name:>18s} t_n_factor {f:6.3g}: accuracy {acc:.4f} spurious {sp:.4f} "
+            print(f"{body_name:>18s} {name} {f:6.3g}: accuracy {acc:.4f} spurious {sp:.4f} "
                   f"bridging {br:.4f}", file=sys.stderr)
-    print(f"{'t_n_factor':>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  (means over "
+    print(f"{name:>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  (means over "
           f"{len(bodies)} bodies, {'oracle' if oracle else 'estimated'} posture)")
     for f in factors:
         a, sp, br = np.mean(rows[f], axis=0)
@@ -90,13 +94,17 @@ def main(argv=None) -> int:
     ap.add_argument("--oracle", action="store_true", help="use the ground-truth posture (no fit)")
     ap.add_argument("--method", default="proposed", choices=("proposed", "simple"))
     ap.add_argument("--sweep-tn", action="store_true", help="sweep the T_n factor instead of timing")
+    ap.add_argument("--sweep", metavar="NAME", default=None,
+                    help="sweep this parameter over --factors instead of timing (accuracy is then "
+                         "'truth among the point's sections')")
     ap.add_argument("--bodies", default="arms_close,hands_on_hips,arm_across,seated,squat,standing",
                     help="bodies of --sweep-tn, comma-separated")
     ap.add_argument("--factors", default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
-                    help="T_n factors of --sweep-tn, comma-separated (1000: always split)")
+                    help="values of --sweep-tn / --sweep, comma-separated (T_n factor 1000: always split)")
     args = ap.parse_args(argv)
-    if args.sweep_tn:
-        sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle)
+    if args.sweep_tn or args.sweep:
+        sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle,
+                 args.sweep or "t_n_factor")
         return 0
 
     from poses import load_body
