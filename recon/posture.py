@@ -27,11 +27,16 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. The
    model's up/down along the torso axis: when the torso is within 60 degrees of the vertical its
    upper end is the one towards +z (clouds are in a +z up frame); otherwise both are matched and
-   the better total score wins.
+   the better total score wins. The volume pins the torso poorly along its own axis (an arm held
+   out at the shoulder, a half-seen side): when the crown, found on the head's axis, lies more
+   than `match_min_anchor_shift` from the model's, the torso slides (at most
+   `match_max_anchor_shift`) so that the head hangs from it, and the sections are placed again.
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
    along the torso axis (at least `match_min_first_stature`); then each leg chain's length (hip to
    the farthest point along its lower leg) is measured and, when the legs' median ratio to the
    standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
+   (`match_size_from_crown` = 1 measures crown to sole instead, which does not depend on where
+   the torso sits; it sizes children to their stature, where their short legs fit worse.)
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
    adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
@@ -45,8 +50,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    gives the same fit.
 7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
    cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
-   a fit that explains fewer than `fit_min_coverage` of the points within `fit_coverage_distance`
-   is not a body (`ReconError`).
+   so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
+   (`fit_doubt_rms`): an arm matched onto the torso's side or a half-seen arm is listed, with a
+   warning, rather than placed wrongly. A fit whose sections (all placed ones) explain fewer than
+   `fit_min_coverage` of the points within `fit_coverage_distance` is not a body (`ReconError`).
 """
 
 from __future__ import annotations
@@ -89,6 +96,9 @@ class FitParams:
     match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
     match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
+    match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
+    match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
+    match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
     match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
     fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
     fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
@@ -101,6 +111,8 @@ class FitParams:
     fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
     fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
     fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
+    fit_doubt_cover: float = 0.5           # 2.3(2): an arm section both this little covered and
+    fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted (chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
@@ -402,7 +414,8 @@ def _robust_radii(points, s: SectionShape) -> np.ndarray:
     return out
 
 
-def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs) -> _Pose:
+def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs,
+                anchor: bool = True) -> _Pose:
     """Place all sections for a torso pose (R columns: left, back, up) and score the whole match."""
     import copy
 
@@ -430,6 +443,13 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
     Lh = body.section_length("head")
     dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70)
     secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
+    if anchor and body.stature >= params.fit_anchor_min_stature:
+        # the volume pins the torso poorly along its axis: the crown does (adult head length)
+        shift = _crown_shift(points, secs["head"])
+        if shift is not None and abs(shift) > params.match_min_anchor_shift:
+            move = float(np.clip(shift, -params.match_max_anchor_shift, params.match_max_anchor_shift))
+            return _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),
+                               R, body, params, dirs, anchor=False)
     total += sh * Lh
     scorer.claim(secs["head"])
     # limb roots in the chest (arms) and waist (legs) frames; legs first: hanging hands reach
@@ -453,6 +473,18 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
         scorer.claim(q)
         total += s
     return _Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores)
+
+
+def _crown_shift(points, head: SectionShape) -> float | None:
+    """How far the detected crown lies beyond the head section's end along its axis, metres (None:
+    too few points on the head's axis)."""
+    rel = points - head.start
+    h = rel @ head.axis
+    rho = np.linalg.norm(rel - np.outer(h, head.axis), axis=1)
+    near = (rho < 0.6 * head.radii.min()) & (h > 0.5 * head.length) & (h < 1.8 * head.length)
+    if near.sum() < 10:
+        return None
+    return float(np.quantile(h[near], 0.995) - head.length)
 
 
 def _chain_extent(points, pose: _Pose, dist: str) -> float | None:
@@ -565,22 +597,44 @@ def _coarse_match(points, scorer, params: FitParams) -> _Pose:
         pose = best
         if stature is not None or rnd == params.match_rounds - 1:
             break
-        ratios = {}
-        for prox, dist, *_ in LIMBS:
-            e = _chain_extent(points, pose, dist)
-            if e is not None:
-                ratios[dist] = e / body.limb_lengths(dist)
-        # legs first: a hand resting on a thigh makes an arm look far too long
-        legs = [v for k, v in ratios.items() if k.startswith("lower_leg")]
-        use = legs if len(legs) == 2 else list(ratios.values())
-        if not use:
-            break
+        ratios = _size_ratios(points, pose)
+        # whole body first (crown to sole: where the torso sits along its axis cancels out), then
+        # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
+        use = ratios.get("body") if params.match_size_from_crown else []
+        use = use or [v for k, v in ratios.items() if k.startswith("lower_leg")]
+        if not use or (len(use) < 2 and "body" not in ratios):
+            use = [v for k, v in ratios.items() if k != "body"]
         s = float(np.median(use))
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
     return pose
+
+
+def _size_ratios(points, pose: _Pose) -> dict:
+    """Measured / model lengths: per limb chain (root to free end), and ``body``: the list of crown
+    to sole lengths over both legs (hip to crown along the head, plus the leg), which do not depend
+    on where the coarse match put the torso along its axis."""
+    body = pose.body
+    ratios = {}
+    for prox, dist, *_ in LIMBS:
+        e = _chain_extent(points, pose, dist)
+        if e is not None:
+            ratios[dist] = e / body.limb_lengths(dist)
+    head = pose.sections["head"]
+    rel = points - head.start
+    h = rel @ head.axis
+    rho = np.linalg.norm(rel - np.outer(h, head.axis), axis=1)
+    near = (rho < 1.5 * head.radii.max() + 0.02) & (h > 0) & (h < 2.0 * head.length)
+    if near.sum() >= 10:
+        hips = pose.centre - 0.5 * _torso_len(body) * pose.R[:, 2] + pose.R @ np.array([0, 0, body.length("hip_z")])
+        up = np.linalg.norm(head.start - hips) + np.quantile(h[near], 0.995)
+        up_model = body.length("neck") + body.section_length("head") - body.length("hip_z")
+        legs = [ratios[d] * body.limb_lengths(d) for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
+        if legs:
+            ratios["body"] = [(up + e) / (up_model + body.limb_lengths("lower_leg_l")) for e in legs]
+    return ratios
 
 
 # -- fine adjustment ----------------------------------------------------------------------------
@@ -946,7 +1000,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     cover = _section_cover(work, secs, params.fit_coverage_distance)
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
                      or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
-                     or coarse_scores.get(n, 1.0) < params.match_min_section_score)
+                     or coarse_scores.get(n, 1.0) < params.match_min_section_score
+                     or (kind_of(n) in ("upper_arm", "forearm") and cover.get(n, 0.0) < params.fit_doubt_cover
+                         and resid.get(n, 0.0) > params.fit_doubt_rms))
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
@@ -955,7 +1011,8 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
                          f"body sections could be fitted")
     _check_plausible(secs, pose.body)
     fitted = {k: v for k, v in secs.items() if k not in unfitted}
-    D = np.min([v.distance(work) for v in fitted.values()], axis=0)
+    # whether the posture was found at all: doubted sections were placed too, and count here
+    D = np.min([v.distance(work) for k, v in secs.items() if counts.get(k, 0) >= params.fit_min_points], axis=0)
     explained = float(np.mean(D < params.fit_coverage_distance))
     if explained < params.fit_min_coverage:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
@@ -963,7 +1020,7 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     if unfitted:
-        warnings.warn(f"sections not fitted (missing from the scan): {', '.join(unfitted)}", stacklevel=2)
+        warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): {', '.join(unfitted)}", stacklevel=2)
     back = sign * pose.R[:, 1]
     joints = _joints(fitted, pose.body, back)
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))

@@ -27,6 +27,8 @@ def _scores(fit, joints):
     err = {k: float(np.linalg.norm(fit.joints[k] - v)) for k, v in joints.items() if k in fit.joints}
     ang = {}
     for sec, (a, b) in BONES.items():
+        if sec not in fit.sections:   # listed unfitted: no angle to compare
+            continue
         d = joints[b] - joints[a]
         ang[sec] = float(np.degrees(np.arccos(np.clip(d @ fit.sections[sec].axis / np.linalg.norm(d), -1, 1))))
     return err, ang
@@ -181,6 +183,7 @@ def test_other_postures_and_sizes(name):
         warnings.simplefilter("ignore")
         fit = estimate_posture(simulator.scan(body, simulator.preset("paper")).points)
     err, ang = _scores(fit, body.joint_dict())
+    assert len(fit.unfitted) <= 2   # a forearm lying on a thigh may be listed, not the body
     assert np.median(list(err.values())) < 0.07
     assert max(err.values()) < 0.15
     assert max(ang.values()) < 25
