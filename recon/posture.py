@@ -35,8 +35,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    along the torso axis (at least `match_min_first_stature`); then each leg chain's length (hip to
    the farthest point along its lower leg) is measured and, when the legs' median ratio to the
    standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
-   (`match_size_from_crown` = 1 measures crown to sole instead, which does not depend on where
-   the torso sits; it sizes children to their stature, where their short legs fit worse.)
+   (`match_size_from_crown` = 1 measures crown to sole instead for adult-size bodies, which does
+   not depend on where the torso sits; off by default: on the shipped library it fixes some
+   k = 3 sizes but misplaces a seated and a squatting body.)
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
    adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
@@ -600,7 +601,10 @@ def _coarse_match(points, scorer, params: FitParams) -> _Pose:
         ratios = _size_ratios(points, pose)
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
-        use = ratios.get("body") if params.match_size_from_crown else []
+        crown = ratios.get("body") or []
+        # adult proportions: crown to sole; a child's large head and short legs: the legs
+        use = crown if params.match_size_from_crown and body.stature * np.median(crown or [0]) >= \
+            params.fit_anchor_min_stature else []
         use = use or [v for k, v in ratios.items() if k.startswith("lower_leg")]
         if not use or (len(use) < 2 and "body" not in ratios):
             use = [v for k, v in ratios.items() if k != "body"]
