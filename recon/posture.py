@@ -52,7 +52,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
 7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
    cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
-   (`fit_doubt_rms`): an arm matched onto the torso's side or a half-seen arm is listed, with a
+   (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
    warning, rather than placed wrongly. A fit whose sections (all placed ones) explain fewer than
    `fit_min_coverage` of the points within `fit_coverage_distance` is not a body (`ReconError`).
 """
@@ -113,7 +113,8 @@ class FitParams:
     fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
     fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
     fit_doubt_cover: float = 0.5           # 2.3(2): an arm section both this little covered and
-    fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted (chosen)
+    fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
+    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
@@ -1005,8 +1006,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
                      or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
                      or coarse_scores.get(n, 1.0) < params.match_min_section_score
-                     or (kind_of(n) in ("upper_arm", "forearm") and cover.get(n, 0.0) < params.fit_doubt_cover
-                         and resid.get(n, 0.0) > params.fit_doubt_rms))
+                     or (kind_of(n) in ("upper_arm", "forearm") and (
+                         cover.get(n, 0.0) < params.fit_doubt_min_cover or (
+                             cover.get(n, 0.0) < params.fit_doubt_cover and resid.get(n, 0.0) > params.fit_doubt_rms))))
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
