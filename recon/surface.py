@@ -3,8 +3,8 @@
 Each section's points are projected onto its model surface: onto the column as ``u = R*theta,
 v = h``, onto a closed cap as ``u = R*phi*cos(theta), v = R*phi*sin(theta)`` (``phi`` the polar
 angle from the cap's pole); an open end projects onto the extended column. Each chart is
-triangulated in 2D (Shewchuk's Triangle when the ``triangle`` package is installed, else
-`scipy.spatial.Delaunay`) and the triangles are applied to the 3D points.
+triangulated in 2D with `scipy.spatial.Delaunay` (Qhull) and the triangles are applied to the 3D
+points.
 
 Seams, as in the paper: the points within ``seam_overlap`` of theta = 0 are copied past 2*pi (and
 back; at most `SEAM_SPACINGS` point spacings), triangulated with the others, and a column
@@ -106,27 +106,17 @@ def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
 def _delaunay(uv):
     """(k, 3) int Delaunay triangles of ``uv`` (m, 2), or None when there are none.
 
-    Uses Shewchuk's Triangle (the ``triangle`` package, about ten times faster than Qhull on
-    these charts) when it is installed, else `scipy.spatial.Delaunay`. Repeated points are
-    ignored by both (they are in no triangle).
+    Always `scipy.spatial.Delaunay` (Qhull), never an optional faster library: a scan's grid
+    points are often co-circular, where the Delaunay triangulation is not unique, and the
+    benchmark's numbers must not depend on what else is installed. Repeated points are in no
+    triangle.
     """
     if len(uv) < 3:
         return None
-    uv = np.ascontiguousarray(uv, dtype=np.float64)
-    try:
-        import triangle
-    except ImportError:
-        triangle = None
-    if triangle is not None:
-        try:
-            simp = triangle.triangulate({"vertices": uv}, "Qz")["triangles"]
-        except (RuntimeError, KeyError, ValueError):  # degenerate: all points collinear
-            return None
-        return np.asarray(simp, dtype=np.int64) if len(simp) else None
     from scipy.spatial import Delaunay, QhullError
 
     try:
-        return Delaunay(uv).simplices
+        return Delaunay(np.ascontiguousarray(uv, dtype=np.float64)).simplices
     except (QhullError, ValueError):  # all points collinear or coincident
         return None
 
