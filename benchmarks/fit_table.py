@@ -1,0 +1,149 @@
+"""Posture estimation on the shipped library against ground truth: the per-posture table of issue 4.
+
+Usage::
+
+    python -m benchmarks.fit_table [--resolution 0.01] [--bodies a,b] [--conditions k1,k1_rot137,k3]
+                                   [--param NAME=VALUE ...]
+
+Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
+k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
+with it; ``k3``: k = 3), fits it with `recon.estimate_posture` and prints one row per run: median and
+largest joint error (metres, over the joints the fit gives), the worst limb section's angle to its
+true bone (degrees, over the fitted limb sections), the sections listed unfitted, the outcome and
+the seconds the fit took. Outcomes:
+
+- ``pass``: the issue's targets (median joint error <= 4 cm, no joint > 10 cm, every limb axis within
+  20 degrees of its bone) with every section fitted;
+- ``part``: the targets met on the sections fitted, some listed unfitted;
+- ``fail``: targets missed, but the fit is near the body (median <= 10 cm);
+- ``WRONG``: a silent nonsense fit (median > 10 cm, no error raised);
+- ``refused``: `ReconError` (the message is printed below the table).
+
+A summary line counts the outcomes.
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+import warnings
+
+import numpy as np
+
+#: Limb sections and the ground-truth bone each follows.
+BONES = {"upper_arm_l": ("shoulder_l", "elbow_l"), "upper_arm_r": ("shoulder_r", "elbow_r"),
+         "forearm_l": ("elbow_l", "wrist_l"), "forearm_r": ("elbow_r", "wrist_r"),
+         "thigh_l": ("hip_l", "knee_l"), "thigh_r": ("hip_r", "knee_r"),
+         "lower_leg_l": ("knee_l", "ankle_l"), "lower_leg_r": ("knee_r", "ankle_r")}
+
+CONDITIONS = ("k1", "k1_rot137", "k3")
+
+
+def rot_z(deg: float) -> np.ndarray:
+    """(3, 3) rotation by ``deg`` degrees about +z."""
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+
+
+def score_fit(fit, joints: dict) -> tuple[dict, dict]:
+    """Per joint error (m) and per fitted limb section angle to its bone (degrees)."""
+    err = {k: float(np.linalg.norm(fit.joints[k] - v)) for k, v in joints.items() if k in fit.joints}
+    ang = {}
+    for sec, (a, b) in BONES.items():
+        if sec in fit.sections:
+            d = joints[b] - joints[a]
+            c = d @ fit.sections[sec].axis / np.linalg.norm(d)
+            ang[sec] = float(np.degrees(np.arccos(np.clip(c, -1, 1))))
+    return err, ang
+
+
+def outcome(err: dict, ang: dict, unfitted) -> str:
+    """``pass``, ``part``, ``fail`` or ``WRONG`` (see the module docstring)."""
+    med = float(np.median(list(err.values())))
+    ok = med <= 0.04 and max(err.values()) <= 0.10 and max(ang.values(), default=0.0) <= 20
+    if ok:
+        return "part" if unfitted else "pass"
+    return "fail" if med <= 0.10 else "WRONG"
+
+
+def run_one(body, condition: str, resolution: float, params=None) -> dict:
+    """Scan ``body`` under ``condition``, fit, score: a table row (dict)."""
+    import simulator
+    from recon import ReconError, estimate_posture
+
+    k = 3 if condition.startswith("k3") else 1
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pts = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k)).points
+    joints = body.joint_dict()
+    if "rot" in condition:
+        R = rot_z(float(condition.split("rot")[1]))
+        pts = pts @ R.T
+        joints = {n: R @ v for n, v in joints.items()}
+    row = dict(body=body.name if hasattr(body, "name") else "?", condition=condition, points=len(pts))
+    t0 = time.perf_counter()
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fit = estimate_posture(pts, params)
+    except ReconError as e:
+        row.update(seconds=time.perf_counter() - t0, outcome="refused", message=str(e))
+        return row
+    row["seconds"] = time.perf_counter() - t0
+    err, ang = score_fit(fit, joints)
+    row.update(median=float(np.median(list(err.values()))), max=max(err.values()),
+               worst_joint=max(err, key=err.get), angle=max(ang.values(), default=np.nan),
+               unfitted=tuple(fit.unfitted), outcome=outcome(err, ang, fit.unfitted))
+    return row
+
+
+def format_row(r: dict) -> str:
+    if r["outcome"] == "refused":
+        return (f"{r['body']:<22} {r['condition']:<10} {'-':>6} {'-':>6} {'':<12} {'-':>5}  "
+                f"{'':<28} {'refused':<7} {r['seconds']:5.2f}")
+    unf = ",".join(u.replace("upper_arm", "ua").replace("forearm", "fa").replace("lower_leg", "ll")
+                   for u in r["unfitted"]) or "-"
+    return (f"{r['body']:<22} {r['condition']:<10} {100 * r['median']:6.1f} {100 * r['max']:6.1f} "
+            f"{r['worst_joint']:<12} {r['angle']:5.1f}  {unf:<28} {r['outcome']:<7} {r['seconds']:5.2f}")
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--resolution", type=float, default=0.01, help="scan resolution, metres (default 0.01)")
+    ap.add_argument("--bodies", default="", help="comma-separated library names (default: all shipped)")
+    ap.add_argument("--conditions", default=",".join(CONDITIONS),
+                    help="comma-separated: k1, k3, k1_rotDEG, k3_rotDEG (default k1,k1_rot137,k3)")
+    ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
+    a = ap.parse_args(argv)
+
+    from poses import list_bodies, load_body
+    from recon import FitParams
+
+    params = FitParams.from_strings(a.param)
+    names = [b for b in a.bodies.split(",") if b] or list_bodies()
+    conds = [c for c in a.conditions.split(",") if c]
+    print(f"resolution {a.resolution} m; median/max joint error cm; worst limb angle deg")
+    print(f"{'body':<22} {'condition':<10} {'median':>6} {'max':>6} {'worst joint':<12} {'angle':>5}  "
+          f"{'unfitted':<28} {'outcome':<7} {'s':>5}")
+    rows = []
+    for name in names:
+        body = load_body(name)
+        for c in conds:
+            r = run_one(body, c, a.resolution, params)
+            r["body"] = name
+            rows.append(r)
+            print(format_row(r), flush=True)
+    for r in rows:
+        if r["outcome"] == "refused":
+            print(f"  refused {r['body']} {r['condition']}: {r['message']}")
+    counts = {o: sum(r["outcome"] == o for r in rows) for o in ("pass", "part", "fail", "WRONG", "refused")}
+    secs = [r["seconds"] for r in rows]
+    print(f"SUMMARY resolution {a.resolution}: {len(rows)} runs: " +
+          ", ".join(f"{k} {v}" for k, v in counts.items()) +
+          f"; targets met (pass+part) {counts['pass'] + counts['part']}; "
+          f"fit seconds median {np.median(secs):.2f} max {max(secs):.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
