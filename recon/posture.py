@@ -101,6 +101,14 @@ class FitParams:
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
     match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
     match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
+    match_alternatives: int = 2            # 2.3(1): other torso poses tried, best first, when the fit of the best
+                                           # fails its checks (a sparse scan's coarse volume often ties an upright
+                                           # torso with one tilted onto an arm; chosen)
+    match_explain_distance: float = 0.03   # 2.3(1)-(2): of the whole-body matches of the torso candidates, the one
+                                           # explaining most points within this (m) wins: on a coarse volume the
+                                           # volume score ties right and wrong torsos, the points do not (chosen)
+    match_explain_points: int = 4000       # 2.3(1): points sampled (fit_seed) for that count (chosen)
+    match_alt_min_turn: float = 10.0       # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
     fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
     fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
     fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
@@ -261,6 +269,7 @@ class _Pose:
     sections: dict
     score: float = 0.0
     section_scores: dict = None   # mean volume weight of each limb section where it was placed
+    explained: float = 0.0        # fraction of the points near the model's surface
 
 
 def _torso_frames(R: np.ndarray) -> np.ndarray:
@@ -477,6 +486,12 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
     return _Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores)
 
 
+def _explained(points, sections: dict, near: float) -> float:
+    """Fraction of ``points`` (n, 3) within ``near`` metres of the surface of any of ``sections``."""
+    D = np.min([s.distance(points) for s in sections.values()], axis=0)
+    return float(np.mean(D < near))
+
+
 def _crown_shift(points, head: SectionShape) -> float | None:
     """How far the detected crown lies beyond the head section's end along its axis, metres (None:
     too few points on the head's axis)."""
@@ -558,14 +573,23 @@ def _thick_core(vol: Volume) -> np.ndarray:
     return vol.centres(core).mean(axis=0)
 
 
-def _coarse_match(points, scorer, params: FitParams) -> _Pose:
-    """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds."""
+def _coarse_match(points, scorer, params: FitParams) -> list:
+    """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
+
+    Of the torso candidates, each placed with all its sections, the one whose model explains most
+    points (`match_explain_distance`) wins. Returns the best pose, then up to `match_alternatives`
+    poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
+    best first."""
     centroid = _thick_core(scorer.vol)
     stature = params.fit_stature if params.fit_stature > 0 else None
     body = standard_body(stature or 1.75)
     dirs = fibonacci_sphere(params.match_directions)
     starts = None
     pose = None
+    alternatives = []
+    rng = np.random.default_rng(params.fit_seed)
+    sample = points if len(points) <= params.match_explain_points else \
+        points[rng.choice(len(points), params.match_explain_points, replace=False)]
     for rnd in range(max(1, params.match_rounds)):
         cands = _match_torso(scorer, centroid, body, params, starts)
         if rnd == 0 and stature is None:
@@ -577,11 +601,16 @@ def _coarse_match(points, scorer, params: FitParams) -> _Pose:
             if near.sum() > 50:
                 ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
                 if abs(R[2, 2]) > 0.8:
-                    # too short for its torso: seated, squatting or kneeling; the limbs tell later
+                    # too short for its torso: seated, squatting or kneeling; the limbs tell later.
+                    # Every candidate is matched again at this size: on a coarse volume (sparse
+                    # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
+                    # one tilted onto an arm; the whole-body match below does
                     body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
-                    cands = _match_torso(scorer, centroid, body, params, [(c, R)])
+                    cands = _match_torso(scorer, centroid, body, params,
+                                         [(cc, RR) for _, cc, RR in cands[:params.match_torso_candidates]])
         best = None
         trials = []
+        placed = []
         for sc, c, R in cands[:params.match_torso_candidates]:
             trials.append((sc, c, R))
             R2 = _roll_from_legs(points, c, R, body)
@@ -594,9 +623,12 @@ def _coarse_match(points, scorer, params: FitParams) -> _Pose:
                 RR = R @ np.diag([1.0, -1.0, -1.0]) if flip else R
                 p = _place_body(points, scorer, c, RR, body, params, dirs)
                 p.score += sc * _torso_len(body)
-                if best is None or p.score > best.score:
+                p.explained = _explained(sample, p.sections, params.match_explain_distance)
+                placed.append(p)
+                if best is None or p.explained > best.explained:
                     best = p
         pose = best
+        alternatives += [p for p in placed if p is not best]
         if stature is not None or rnd == params.match_rounds - 1:
             break
         ratios = _size_ratios(points, pose)
@@ -614,7 +646,14 @@ def _coarse_match(points, scorer, params: FitParams) -> _Pose:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
-    return pose
+    # other torso poses, best first, for when the best one's fine fit fails its checks
+    alts, seen = [], [pose]
+    for p in sorted(alternatives, key=lambda p: -p.explained):
+        if all(p.R[:, 2] @ q.R[:, 2] < np.cos(np.radians(params.match_alt_min_turn))
+               or np.linalg.norm(p.centre - q.centre) > 0.5 * params.match_min_anchor_shift for q in seen):
+            seen.append(p)
+            alts.append(p)
+    return [pose] + alts[:max(0, params.match_alternatives)]
 
 
 def _size_ratios(points, pose: _Pose) -> dict:
@@ -876,19 +915,13 @@ def _front_sign(points, secs: dict, R: np.ndarray) -> float:
     """+1 if the subject faces -R[:, 1] (the provisional front), -1 if it faces +R[:, 1]."""
     back = R[:, 1]
     up = R[:, 2]
+    scale = float(np.clip(np.linalg.norm(secs["waist"].end - secs["waist"].start) / 0.364, 0.5, 1.5)) \
+        if "waist" in secs else 1.0
     votes = 0.0
     for side in ("l", "r"):
         th, sh = secs.get(f"thigh_{side}"), secs.get(f"lower_leg_{side}")
         if sh is not None:
-            # the foot sticks out forward from the shin at its distal end (toes far, heel near)
-            q = sh.local(points)
-            h = q[:, 2]
-            end = sh.length + (sh.caps[1] if sh.closed[1] else 0.0)
-            sel = (h > end - 0.15) & (h < end + 0.08) & (np.hypot(q[:, 0], q[:, 1]) < 0.3)
-            if sel.sum() > 10:
-                off = (points[sel] - sh.start) @ back - h[sel] * (sh.axis @ back)
-                fwd, bwd = -np.quantile(off, 0.02), np.quantile(off, 0.98)
-                votes += 2.0 * np.tanh((fwd - bwd) / 0.03)
+            votes += _foot_vote(points, sh, back, scale)
         if th is not None and sh is not None:
             bend = sh.axis - th.axis * (sh.axis @ th.axis)   # knees bend backwards
             b = bend @ back
@@ -900,6 +933,35 @@ def _front_sign(points, secs: dict, R: np.ndarray) -> float:
             if abs(f) > 0.4:
                 votes -= 1.0 * np.sign(f)
     return 1.0 if votes >= 0 else -1.0
+
+
+def _foot_vote(points, shin: SectionShape, back: np.ndarray, scale: float = 1.0) -> float:
+    """Front/back vote of one foot: in [-2, 2], > 0 when the foot sticks out towards ``-back``.
+
+    The foot is the last ``0.06 * scale`` m of the leg chain, found from the farthest points along
+    the shin's axis line (not from the shin's fitted end: in a sparse scan the sole is not detected
+    and the end falls short of the foot, where the calf, which bulges backwards, would vote instead).
+    Its offsets from the axis towards the front (toes, about 0.15 m) and the back (heel, about
+    0.05 m) are compared.
+    """
+    rel = points - shin.start
+    h = rel @ shin.axis
+    lat = rel - np.outer(h, shin.axis)
+    near = (np.linalg.norm(lat, axis=1) < 0.22 * scale) & (h > 0.5 * shin.length) & \
+        (h < shin.length + 0.35 * scale)
+    if near.sum() < 10:
+        return 0.0
+    tip = float(np.quantile(h[near], 0.995))
+    sel = near & (h > tip - 0.06 * scale)
+    if sel.sum() < 6:
+        return 0.0
+    b = back - shin.axis * (back @ shin.axis)
+    nb = float(np.linalg.norm(b))
+    if nb < 0.3:   # the shin points front-back: the foot says nothing here
+        return 0.0
+    off = lat[sel] @ (b / nb)
+    fwd, bwd = -np.quantile(off, 0.02), np.quantile(off, 0.98)
+    return float(2.0 * np.tanh((fwd - bwd) / 0.03))
 
 
 def _swap_sides(name: str) -> str:
@@ -982,13 +1044,32 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     times["voxelize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    pose = _coarse_match(work, scorer, params)
+    poses = _coarse_match(work, scorer, params)
     times["match"] = time.perf_counter() - t0
 
+    # the best coarse pose; when its fit fails the checks, the next torso candidate (a wrong
+    # coarse pose is retried, then refused, never returned)
     t0 = time.perf_counter()
-    secs, resid, counts = _fine(work, pose, params)
+    first = None
+    for pose in poses:
+        try:
+            fit, unfitted = _finish(work, pose, params)
+            break
+        except ReconError as e:
+            first = first or e
+    else:
+        raise first
     times["fine"] = time.perf_counter() - t0
+    if unfitted:
+        warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): {', '.join(unfitted)}", stacklevel=2)
+    fit.times.update(times)
+    return fit
 
+
+def _finish(work, pose: _Pose, params: FitParams):
+    """Fine adjustment, front and back, checks and joints of one coarse pose: (BodyFit, unfitted);
+    `ReconError` when the result is not a body (too few sections, too few points explained)."""
+    secs, resid, counts = _fine(work, pose, params)
     secs = _anchor_on_head_top(secs, pose.body, params)
 
     # front and back from the data: relabel left/right when the provisional front was the back
@@ -1025,14 +1106,12 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
                          f"the fitted model explains only "
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
-    if unfitted:
-        warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): {', '.join(unfitted)}", stacklevel=2)
     back = sign * pose.R[:, 1]
     joints = _joints(fitted, pose.body, back)
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
-                   coarse=coarse, times=times)
+                   coarse=coarse, times={}), unfitted
 
 
 def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
