@@ -46,7 +46,8 @@ def rule_of_points(points, fit, params, coords, tree):
     m1 = C.refine_by_distance(m0, r, theta, h, fit, cp)
     radius = C.neighbor_radius(points, cp, tree)
     m2 = C.adopt_unlabeled(m1, points, radius, cp.max_rounds, tree) if cp.adopt_unlabeled else m1
-    m3 = C.reduce_to_two(m2, points, r, widths, max_rounds=cp.max_rounds, tree=tree)
+    m3 = C.reduce_to_two(m2, points, r, widths, max_rounds=cp.max_rounds, tree=tree,
+                         keep_nearest=cp.three_keep_nearest)
     c0, c1, c2, c3 = (m.sum(axis=1) for m in (m0, m1, m2, m3))
     rule = np.full(len(points), RULES.index("none"))
     rule[c1 == 1] = np.where(c0[c1 == 1] == 1, RULES.index("single"), RULES.index("refine"))

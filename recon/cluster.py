@@ -298,12 +298,19 @@ def _scaled_distance(r, widths):
 
 
 def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths: np.ndarray,
-                  *, max_rounds: int = 20, k: int = 16, tree=None) -> np.ndarray:
+                  *, max_rounds: int = 20, k: int = 16, tree=None,
+                  keep_nearest: bool = False) -> np.ndarray:
     """Three-or-more rule: copy the sections of the nearest point that has fewer (paper 3.2).
 
     Repeated until every point is in at most two sections; after ``max_rounds`` (or when a point has
     no such point among its ``k`` nearest) it keeps the two sections whose surfaces are nearest
     relative to their widths.
+
+    With ``keep_nearest`` (paper silent), the donor must also be in the section whose surface is
+    nearest to the point (relative to widths): the copy drops the farther claims, never the
+    surface the point lies on. Without it, an arm point against the chest below the shoulder (in
+    chest, waist and upper arm) copies the labels of the nearest torso point (chest and waist)
+    and leaves its own arm: it is then meshed with the chest, across the armpit.
 
     Returns a copy of ``member`` (n, 11).
     """
@@ -318,12 +325,16 @@ def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths:
     k = min(k, len(points))
     _, nb0 = tree.query(points[many0], k=k, workers=-1)   # counts only fall: one query will do
     nb0 = nb0.reshape(len(many0), k)
+    if keep_nearest:
+        nearest = np.argmin(np.where(out[many0], _scaled_distance(r[many0], widths), np.inf), axis=1)
     for _ in range(max_rounds):
         still = count[many0] >= 3
         if not still.any():
             return out
         many, nb = many0[still], nb0[still]
         fewer = (count[nb] < count[many][:, None]) & (nb != many[:, None])
+        if keep_nearest:
+            fewer &= out[nb, nearest[still][:, None]]
         has = fewer.any(axis=1)
         if not has.any():
             break
@@ -588,7 +599,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
-    out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree)
+    out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
+                        keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)
     if len(rows) == 0:
         return out

@@ -166,3 +166,21 @@ def test_joint_plane_score_is_the_mitre_of_the_axes():
     # the hip lies a whole radius off the waist's axis: a side joint, no plane
     hip = C.joint_plane_score(pts, np.full(5, I["waist"]), np.full(5, k), fit, 0.3)
     assert np.all(hip == 0)
+
+
+def test_three_or_more_keeps_the_surface_the_point_lies_on():
+    """An arm point against the torso (chest, waist, arm; on the arm's surface) whose nearest point
+    with fewer labels is a torso point (chest, waist): it copies from the arm's side instead."""
+    P = np.array([[0, 0, 0], [0.01, 0, 0], [0.02, 0, 0]])
+    c, w, a = I["chest"], I["waist"], I["upper_arm_l"]
+    m = np.zeros((3, 11), bool)
+    m[0, [c, w, a]] = True
+    m[1, [c, w]] = True             # nearest with fewer: torso
+    m[2, [c, a]] = True             # next: chest and arm
+    r = np.full((3, 11), np.nan)
+    r[0, [c, w, a]] = [0.06, 0.07, 0.0]        # on the arm's surface
+    widths = np.full(11, 0.3)
+    paper = C.reduce_to_two(m, P, r, widths)
+    assert paper[0].nonzero()[0].tolist() == [c, w]
+    kept = C.reduce_to_two(m, P, r, widths, keep_nearest=True)
+    assert kept[0].nonzero()[0].tolist() == [c, a]
