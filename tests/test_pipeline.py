@@ -245,8 +245,10 @@ def _score(name, cache):
 
 
 #: Known failures, kept visible: (posture, reason).
-KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: adjacent sections, so "
-                           "neither refinement nor the joint rule separates them (armpit bridging ~0.8 %)"}
+KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: a few arm points lose the arm "
+                           "in the refinement (the waist claims them too) and are meshed with the chest; "
+                           "bridging with max_edge_factor=4 0.63 % (> 0.5 %), default 0.60 % "
+                           "(armpit 0.36 %)"}
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN[n], strict=True))
@@ -254,9 +256,10 @@ KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: adjace
 def test_shipped_posture_against_ground_truth(name, scored):
     r = _score(name, scored)
     prop, simple, limited = r["proposed"], r["simple"], r["limited"]
-    # sections of the points (the issue asks >= 95 %; we reach 91-97 % "truth among labels")
-    assert prop["accuracy"]["section_accuracy_any"] >= 0.89
-    assert prop["accuracy"]["section_accuracy"] >= 0.88
+    # sections of the points (the issue asks >= 95 %; measured "truth among labels" 0.910 (squat)
+    # to 0.968, 1/m-scored 0.895 to 0.954; see test_shipped_postures_on_average)
+    assert prop["accuracy"]["section_accuracy_any"] >= 0.905
+    assert prop["accuracy"]["section_accuracy"] >= 0.89
     assert prop["accuracy"]["section_accuracy"] > simple["accuracy"]["section_accuracy"]
     # the paper's spurious-patch test
     assert prop["spurious"] < simple["spurious"]
@@ -264,6 +267,14 @@ def test_shipped_posture_against_ground_truth(name, scored):
     assert prop["armpit_crotch_bridging"] < 0.005
     assert prop["bridging"] < 0.01 and prop["bridging"] < simple["bridging"]
     assert limited["bridging"] < 0.005
+
+
+@pytest.mark.skipif(not _shipped(), reason="no shipped postures")
+def test_shipped_postures_on_average(scored):
+    """Means over every shipped posture (measured: truth among labels 0.952, bridging 0.47 %)."""
+    rows = [_score(n, scored)["proposed"] for n in _shipped()]
+    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in rows]) >= 0.95
+    assert np.mean([r["bridging"] for r in rows]) < 0.005
 
 
 @pytest.mark.parametrize("name", _shipped()[:3])
