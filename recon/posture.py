@@ -311,7 +311,10 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
         Y = _cross(Z, X)
         frames = np.stack([X, Y, Z], axis=1)
         cands = []
-        for off in (-0.05, 0.0, 0.05):
+        # the deepest part of the volume is the pelvis and hips (the thighs join there), below
+        # the torso column's centre: so centres up to 0.10 H above it are searched (measured on the
+        # shipped library: the column's centre 0-0.18 m above the core, seated 0.06 m below)
+        for off in (-0.05, 0.0, 0.05, 0.10):
             c = centroid + off * body.stature * Z
             s = (_column_score(scorer, c, frames, L, rad, tmpl) - _column_score(scorer, c, frames, L, rad, ring)
                  - lam * (1.0 - np.abs(frames[:, 2, 2])))
@@ -921,7 +924,7 @@ def _front_sign(points, secs: dict, R: np.ndarray) -> float:
     for side in ("l", "r"):
         th, sh = secs.get(f"thigh_{side}"), secs.get(f"lower_leg_{side}")
         if sh is not None:
-            votes += _foot_vote(points, sh, back, scale)
+            votes += _foot_vote(points, sh, back, up, scale)
         if th is not None and sh is not None:
             bend = sh.axis - th.axis * (sh.axis @ th.axis)   # knees bend backwards
             b = bend @ back
@@ -935,14 +938,17 @@ def _front_sign(points, secs: dict, R: np.ndarray) -> float:
     return 1.0 if votes >= 0 else -1.0
 
 
-def _foot_vote(points, shin: SectionShape, back: np.ndarray, scale: float = 1.0) -> float:
+def _foot_vote(points, shin: SectionShape, back: np.ndarray, up: np.ndarray, scale: float = 1.0) -> float:
     """Front/back vote of one foot: in [-2, 2], > 0 when the foot sticks out towards ``-back``.
 
-    The foot is the last ``0.06 * scale`` m of the leg chain, found from the farthest points along
-    the shin's axis line (not from the shin's fitted end: in a sparse scan the sole is not detected
-    and the end falls short of the foot, where the calf, which bulges backwards, would vote instead).
-    Its offsets from the axis towards the front (toes, about 0.15 m) and the back (heel, about
-    0.05 m) are compared.
+    The foot is the last ``0.06 * scale`` m of the leg chain, found from the farthest points of the
+    chain, not from the shin's fitted end (in a sparse scan the sole is not detected and the end
+    falls short of the foot, where the calf, which bulges backwards, would vote instead). When the
+    shin points mostly down (or up), "farthest" is along the vertical ``up`` (the foot rests flat on
+    the floor even when the shin leans, as in a squat) and the foot's offsets front and back are
+    measured horizontally from the ankle, on the shin's axis a foot height above the lowest point;
+    otherwise along the shin's axis, from the axis. The toes reach about 0.15 m forward, the heel
+    about 0.05 m back.
     """
     rel = points - shin.start
     h = rel @ shin.axis
@@ -951,15 +957,25 @@ def _foot_vote(points, shin: SectionShape, back: np.ndarray, scale: float = 1.0)
         (h < shin.length + 0.35 * scale)
     if near.sum() < 10:
         return 0.0
-    tip = float(np.quantile(h[near], 0.995))
-    sel = near & (h > tip - 0.06 * scale)
+    c = float(shin.axis @ up)
+    if abs(c) > 0.5:
+        g = up * np.sign(c)                       # the direction the shin points, vertically
+        depth = points @ g
+        tip = float(np.quantile(depth[near], 0.995))
+        sel = near & (depth > tip - 0.06 * scale)
+        ankle = shin.start + shin.axis * ((tip - 0.075 * scale - shin.start @ g) / (shin.axis @ g))
+        b = back - g * (back @ g)
+        off = (points[sel] - ankle) @ (b / max(np.linalg.norm(b), 1e-9))
+    else:
+        tip = float(np.quantile(h[near], 0.995))
+        sel = near & (h > tip - 0.06 * scale)
+        b = back - shin.axis * (back @ shin.axis)
+        nb = float(np.linalg.norm(b))
+        if nb < 0.3:   # the shin points front-back: the foot says nothing here
+            return 0.0
+        off = lat[sel] @ (b / nb)
     if sel.sum() < 6:
         return 0.0
-    b = back - shin.axis * (back @ shin.axis)
-    nb = float(np.linalg.norm(b))
-    if nb < 0.3:   # the shin points front-back: the foot says nothing here
-        return 0.0
-    off = lat[sel] @ (b / nb)
     fwd, bwd = -np.quantile(off, 0.02), np.quantile(off, 0.98)
     return float(2.0 * np.tanh((fwd - bwd) / 0.03))
 
