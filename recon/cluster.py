@@ -438,14 +438,20 @@ SIDE_JOINT = 0.7
 
 
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
-                      reach: float) -> np.ndarray:
+                      reach: float, mitre_band: float = np.inf) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
     end of D at the joint, with the bisector of the two axes as normal (P's axis toward the joint
     plus D's axis away from it: the plane across a straight limb, the mitre of a bent one). The
     score is the signed distance to it (positive on D's side) over ``reach`` times D's width,
-    clipped to [-1, 1]. At a side joint, where D leaves P through its side rather than its end
+    clipped to [-1, 1].
+
+    Where the joint lies more than ``mitre_band`` widths of D past D's end (measured along P's
+    axis), the body between that end and the joint still follows P: the boundary is P's cross
+    section, and the normal is P's axis alone (the spine bends at the chest joint, well above
+    the chest section's lower end). Where D's end lies more than ``mitre_band`` widths past the
+    joint, the normal is D's axis alone. At a side joint, where D leaves P through its side rather than its end
     (the joint is further than `SIDE_JOINT` mean radii from P's axis: shoulders, hips), the
     boundary is no plane across an axis, and the score is 0.
 
@@ -457,6 +463,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     fit : BodyFit
     reach : float
         Fraction of the distal section's width at which the score saturates.
+    mitre_band : float
+        Widths of D: the mitre only where the joint is within this of D's end (default: always).
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -476,12 +484,17 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         n = np.linalg.norm(normal)
         normal = normal / n if n > 1e-3 else away
         origin = D.start if at_start else D.end
+        beyond = (j - origin) @ toward / D.width   # the joint lies this far past D's end, widths
+        if beyond > mitre_band:
+            normal = toward
+        elif beyond < -mitre_band:
+            normal = away
         out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
     return out
 
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
-                   fit=None, plane_weight=0.0, plane_reach=0.3):
+                   fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -554,7 +567,8 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
             front = np.where(np.isinf(f_p) & np.isinf(f_d), 0.0,
                              np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
-        vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach)
+        vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
+                                                           mitre_band)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -613,7 +627,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
         resolve_joints(out, points, r, rows[at], A[at], B[at], radius, tree, widths,
                        seam_width=radius * params.seam_width / params.neighbor_spacing
                        if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
-                       fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d)
+                       fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
+                       mitre_band=params.mitre_band)
     return out
 
 

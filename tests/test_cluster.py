@@ -184,3 +184,21 @@ def test_three_or_more_keeps_the_surface_the_point_lies_on():
     assert paper[0].nonzero()[0].tolist() == [c, w]
     kept = C.reduce_to_two(m, P, r, widths, keep_nearest=True)
     assert kept[0].nonzero()[0].tolist() == [c, a]
+
+
+def test_joint_plane_is_the_proximal_cross_section_where_the_joint_lies_inside_the_distal_section():
+    """A spine: the chest starts 0.1 m below the joint at which it bends forward 30 degrees; the
+    body below the bend follows the waist, so the plane at the chest's end is horizontal."""
+    joint = np.array([0, 0, 1.3])
+    tilt = np.array([0, -np.sin(np.radians(30)), np.cos(np.radians(30))])
+    start = joint - 0.1 * tilt
+    waist = SectionShape("waist", start, [0, start[1], 0.95], [0.15, 0.1], X)
+    chest = SectionShape("chest", start, start + 0.35 * tilt, [0.15, 0.1], X)
+    fit = BodyFit(sections={"waist": waist, "chest": chest}, joints={"chest": joint})
+    # points in front of and behind the axis, 1 cm above the chest's end: the mitre would tilt
+    pts = start + np.array([[0, -0.12, 0.01], [0, 0.12, 0.01], [0, -0.12, -0.01], [0, 0.12, -0.01]])
+    w, c = np.full(4, I["waist"]), np.full(4, I["chest"])
+    flat = C.joint_plane_score(pts, w, c, fit, 0.3, mitre_band=0.1)
+    assert np.allclose(flat, np.array([0.01, 0.01, -0.01, -0.01]) / (0.3 * chest.width), atol=1e-3)
+    mitre = C.joint_plane_score(pts, w, c, fit, 0.3)
+    assert mitre[0] > 0 > mitre[1]          # the mitre tilts forward: the front point goes to the chest
