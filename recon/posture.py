@@ -91,6 +91,10 @@ class FitParams:
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
                                            # each also with its roll from the legs (chosen)
     match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
+    match_thigh_max_rise: float = 0.2      # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
+                                           # must flex front or back more than it rises (anatomy; chosen)
+    match_upright_start: float = 12.0      # 2.3(1): the best torso within this of +z (degrees) is always among
+                                           # those matched whole (chosen)
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
     match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
@@ -281,8 +285,9 @@ def _torso_len(body: StandardBody) -> float:
 
 
 def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, params: FitParams,
-                 starts=None) -> list:
-    """Candidate torso poses (centre, R) ranked by volume score, refined."""
+                 starts=None, step: float = 1.0) -> list:
+    """Candidate torso poses (centre, R) ranked by volume score, refined (Nelder-Mead, first steps
+    ``step`` times 4 cm and 0.15 rad: given ``starts``, a smaller ``step`` keeps each near its own)."""
     from scipy.optimize import minimize
 
     L = _torso_len(body)
@@ -295,7 +300,6 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
     ring = np.column_stack([np.cos(t), np.sin(t), np.full(len(t), 0.5 + 0.06 * body.stature / L)])
 
     lam = params.match_upright_prior
-
     def score(c, R):
         return float(_column_score(scorer, c, R.T[None], L, rad, tmpl)[0]
                      - _column_score(scorer, c, R.T[None], L, rad, ring)[0]
@@ -329,11 +333,25 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
             starts.append((c, R))
             if len(starts) == 3:
                 break
+        # and the best upright torso: on a coarse volume a torso tilted onto a hanging arm can
+        # outscore it (its wide axis turned front-back, it covers torso and arm); the whole-body
+        # match decides (the scanner's +z is up, and people are scanned mostly upright)
+        cos_up = np.cos(np.radians(params.match_upright_start))
+        if all(abs(R[2, 2]) < cos_up for _, R in starts):   # (refined, it stays upright)
+            up = [(s, c, R) for s, c, R in cands if abs(R[2, 2]) >= cos_up]
+            if up:
+                starts.append(up[0][1:])
     out = []
+    cos_up = np.cos(np.radians(params.match_upright_start))
     for c0, R0 in starts:
+        upright = abs(R0[2, 2]) >= cos_up
+
         def f(x):
-            return -score(c0 + x[:3], _rotvec(x[3:]) @ R0)
-        simplex = np.vstack([np.zeros(6), np.diag([0.04, 0.04, 0.04, 0.15, 0.15, 0.15])])
+            R = _rotvec(x[3:]) @ R0
+            if upright and abs(R[2, 2]) < cos_up:
+                return 10.0   # an upright start stays upright (another start may tilt)
+            return -score(c0 + x[:3], R)
+        simplex = np.vstack([np.zeros(6), step * np.diag([0.04, 0.04, 0.04, 0.15, 0.15, 0.15])])
         res = minimize(f, np.zeros(6), method="Nelder-Mead",
                        options=dict(initial_simplex=simplex, maxfev=150, xatol=1e-3, fatol=1e-4))
         out.append((-res.fun, c0 + res.x[:3], _rotvec(res.x[3:]) @ R0))
@@ -346,8 +364,13 @@ def _column(name, start, d, length, radii, frame_x, closed=(True, True)) -> Sect
                         frame_x=frame_x, closed=closed)
 
 
-def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
-    """Best (d1, d2, score) of a limb chain from ``root`` on the volume."""
+def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None):
+    """Best (d1, d2, score) of a limb chain from ``root`` on the volume.
+
+    With the torso frame ``R`` (columns left, back, up), a thigh may rise above the horizontal of
+    the torso only by flexing (forward or backward: which is the front is not known yet) more than
+    it rises: a thigh does not reach up beside the torso (on a coarse volume, a leg chain could
+    otherwise follow the arm hanging next to it)."""
     from scipy.optimize import minimize
 
     L1, L2 = body.section_length(prox), body.section_length(dist)
@@ -355,6 +378,14 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
     F = _frames_from_dirs(dirs)
     s1 = _column_score(scorer, root, F, L1, r1, _LIMB_T)
     s1[dirs @ outward < -params.match_max_adduction] = -np.inf
+
+    def raised(d):
+        if R is None or not prox.startswith("thigh"):
+            return np.zeros(d.shape[:-1], bool)
+        up = d @ R[:, 2]
+        return (up > params.match_thigh_max_rise) & (np.abs(d @ R[:, 1]) < up)
+
+    s1[raised(dirs)] = -np.inf
 
     def distal(elbow, d1, frames):
         # distal samples inside the proximal column weigh 0: no folding back over the same limb
@@ -388,7 +419,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward):
     def total(x):
         a = _tangent_dir(d1, x[0], x[1])
         b = _tangent_dir(d2, x[2], x[3])
-        if a @ b < cos_max or a @ outward < -params.match_max_adduction or \
+        if a @ b < cos_max or a @ outward < -params.match_max_adduction or raised(a) or \
                 (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
             return 10.0
         e = root + L1 * a
@@ -476,7 +507,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
         else:
             root = pelvis + R @ off
         outward = ex if root_name.endswith("_l") else -ex
-        d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward)
+        d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R)
         p = _column(prox, root, d1, body.section_length(prox), body.radii(kind_of(prox)), _perp(d1))
         q = _column(dist, p.end, d2, body.section_length(dist), body.radii(kind_of(dist)), _perp(d2))
         secs[prox], secs[dist] = p, q
@@ -576,6 +607,16 @@ def _thick_core(vol: Volume) -> np.ndarray:
     return vol.centres(core).mean(axis=0)
 
 
+def _torso_choice(cands: list, params: FitParams) -> list:
+    """The best `match_torso_candidates` torso poses, and the best upright one (within
+    `match_upright_start` degrees of +z) if they hold none."""
+    out = list(cands[:params.match_torso_candidates])
+    cos_up = np.cos(np.radians(params.match_upright_start))
+    if all(abs(R[2, 2]) < cos_up for _, _, R in out):
+        out += [t for t in cands if abs(t[2][2, 2]) >= cos_up][:1]
+    return out
+
+
 def _coarse_match(points, scorer, params: FitParams) -> list:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
 
@@ -596,11 +637,14 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
     for rnd in range(max(1, params.match_rounds)):
         cands = _match_torso(scorer, centroid, body, params, starts)
         if rnd == 0 and stature is None:
-            # first size estimate: the body's extent along the torso axis near that axis
+            # first size estimate: the body's extent along the torso axis near that axis; for an
+            # upright torso along +z near the vertical through its centre (a torso tilted by the
+            # coarse match onto an arm would miss the feet, and the size with them)
             c, R = cands[0][1], cands[0][2]
+            ax = np.array([0.0, 0.0, 1.0]) if abs(R[2, 2]) > 0.8 else R[:, 2]
             rel = points - c
-            h = rel @ R[:, 2]
-            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
+            h = rel @ ax
+            near = np.linalg.norm(rel - np.outer(h, ax), axis=1) < 0.3
             if near.sum() > 50:
                 ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
                 if abs(R[2, 2]) > 0.8:
@@ -610,11 +654,11 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
                     # one tilted onto an arm; the whole-body match below does
                     body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
                     cands = _match_torso(scorer, centroid, body, params,
-                                         [(cc, RR) for _, cc, RR in cands[:params.match_torso_candidates]])
+                                         [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
         best = None
         trials = []
         placed = []
-        for sc, c, R in cands[:params.match_torso_candidates]:
+        for sc, c, R in _torso_choice(cands, params):
             trials.append((sc, c, R))
             R2 = _roll_from_legs(points, c, R, body)
             if abs(R2[:, 0] @ R[:, 0]) < np.cos(np.radians(20)):
@@ -630,8 +674,10 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
                 placed.append(p)
                 if best is None or p.explained > best.explained:
                     best = p
-        pose = best
         alternatives += [p for p in placed if p is not best]
+        if pose is not None:
+            alternatives.append(pose)
+        pose = best
         if stature is not None or rnd == params.match_rounds - 1:
             break
         ratios = _size_ratios(points, pose)
