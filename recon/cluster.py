@@ -438,7 +438,7 @@ SIDE_JOINT = 0.7
 
 
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
-                      reach: float, mitre_band: float = np.inf) -> np.ndarray:
+                      reach: float, mitre_band: float = np.inf, side_planes: bool = False) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -451,9 +451,14 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     axis), the body between that end and the joint still follows P: the boundary is P's cross
     section, and the normal is P's axis alone (the spine bends at the chest joint, well above
     the chest section's lower end). Where D's end lies more than ``mitre_band`` widths past the
-    joint, the normal is D's axis alone. At a side joint, where D leaves P through its side rather than its end
-    (the joint is further than `SIDE_JOINT` mean radii from P's axis: shoulders, hips), the
-    boundary is no plane across an axis, and the score is 0.
+    joint, the normal is D's axis alone.
+
+    At a side joint, where D leaves P through its side rather than its end (the joint is further
+    than `SIDE_JOINT` mean radii from P's axis: shoulders, hips), there is no plane across P's
+    axis. With ``side_planes``, where the joint lies beside P's column (within its length: the
+    shoulders), the plane is D's cross-section through the joint, the limb's centre of rotation
+    (a hanging arm: its inner side below the joint is arm, the chest beside the joint is
+    chest); where it lies beyond P's end (the hips, below the waist's column) the score is 0.
 
     Parameters
     ----------
@@ -465,6 +470,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Fraction of the distal section's width at which the score saturates.
     mitre_band : float
         Widths of D: the mitre only where the joint is within this of D's end (default: always).
+    side_planes : bool
+        Planes at the side joints beside P's column (default: none at side joints).
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -476,7 +483,16 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         j = fit.joints.get(joint, D.start) if fit.joints else D.start
         along = (j - P.start) @ P.axis
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
-            continue  # a side joint: no plane
+            if not (side_planes and 0.0 <= along <= P.length):
+                continue  # a side joint beyond P's end (hips): no plane
+            # beside P's column (shoulders): D's cross-section through the joint
+            at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
+            away = D.axis if at_start else -D.axis
+            score = np.clip((points[sel] - j) @ away / (reach * D.width), -1.0, 1.0)
+            # only along D's column: beyond its end (its cap, a capsule's dome) the plane says nothing
+            h = (points[sel] - (D.start if at_start else D.end)) @ away
+            out[sel] = np.where(h >= 0, score, 0.0)
+            continue
         toward = P.axis if along > P.length / 2 else -P.axis
         at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
         away = D.axis if at_start else -D.axis
@@ -494,7 +510,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
-                   fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf):
+                   fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
+                   side_planes=False):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -568,7 +585,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                              np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
-                                                           mitre_band)
+                                                           mitre_band, side_planes)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -628,7 +645,7 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        seam_width=radius * params.seam_width / params.neighbor_spacing
                        if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
-                       mitre_band=params.mitre_band)
+                       mitre_band=params.mitre_band, side_planes=params.side_joint_planes)
     return out
 
 

@@ -72,6 +72,17 @@ class ClusterParams:
         it helps most at the neck, elbows and bent knees. (Tried: the plane through the middle of the
         two sections' joint ends instead of the distal end: 0.953 mean, but the capsule body of
         tests/test_pipeline.py, whose chest and head leave a 3 cm gap, fell 0.937 -> 0.926.)
+    side_joint_planes : bool
+        Joint rule: at a side joint whose joint lies beside the proximal column (the shoulders),
+        the plane through the joint across the distal axis also votes (chosen; paper silent; see
+        `recon.cluster.joint_plane_score`). Measured on the 21 shipped postures (oracle posture,
+        ``python -m benchmarks.recon_table``; mean truth among labels / mean and min 1/m-scored
+        accuracy): False 0.955 / 0.941 / 0.909, True 0.958 / 0.943 / 0.911, spurious 0.041 and
+        bridging 0.47 % unchanged; at every side joint including the hips (whose joint lies
+        beyond the waist's column) 0.951 / 0.939 / 0.916: the hips keep no plane. The plane
+        votes only along the distal column, not in its cap: voting there too gave 0.959 / 0.946 /
+        0.913, but took the dome of the capsule body's arm (tests/test_pipeline.py) to the chest
+        (0.937 -> 0.935).
     three_keep_nearest : bool
         Three-or-more rule: copy only from a neighbour that is also in the section whose surface
         is nearest to the point (chosen; paper 3.2 says "the nearest point with fewer labels").
@@ -113,6 +124,7 @@ class ClusterParams:
     joint_reach: float = 0.75       # paper silent
     joint_plane_weight: float = 1.0  # paper silent; 0 = the paper's erosion alone
     mitre_band: float = 0.1          # paper silent (chosen: see above), widths
+    side_joint_planes: bool = True  # paper silent (chosen: see above)
     three_keep_nearest: bool = True  # paper silent (chosen: see above)
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent

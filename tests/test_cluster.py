@@ -202,3 +202,24 @@ def test_joint_plane_is_the_proximal_cross_section_where_the_joint_lies_inside_t
     assert np.allclose(flat, np.array([0.01, 0.01, -0.01, -0.01]) / (0.3 * chest.width), atol=1e-3)
     mitre = C.joint_plane_score(pts, w, c, fit, 0.3)
     assert mitre[0] > 0 > mitre[1]          # the mitre tilts forward: the front point goes to the chest
+
+
+def test_side_joint_plane_is_the_arms_cross_section_through_the_shoulder():
+    """A hanging arm beside the chest: points below the shoulder joint score for the arm, points
+    above for the chest; none in the arm's cap above its column; none at a hip below the waist."""
+    shoulder = np.array([0.2, 0, 1.40])
+    chest = SectionShape("chest", [0, 0, 1.15], [0, 0, 1.45], [0.15, 0.10], X)
+    arm = SectionShape("upper_arm_l", shoulder + [0, 0, 0.04], [0.2, 0, 1.10], [0.045, 0.045], X)
+    waist = SectionShape("waist", [0, 0, 1.15], [0, 0, 0.95], [0.15, 0.10], X)
+    thigh = SectionShape("thigh_l", [0.09, 0, 0.92], [0.09, 0, 0.5], [0.07, 0.07], X)
+    fit = BodyFit(sections={"chest": chest, "upper_arm_l": arm, "waist": waist, "thigh_l": thigh},
+                  joints={"shoulder_l": shoulder, "hip_l": np.array([0.09, 0, 0.92])})
+    pts = shoulder + np.array([[-0.03, 0, -0.02], [-0.03, 0, 0.02], [0, 0, 0.06]])
+    c, a = np.full(3, I["chest"]), np.full(3, I["upper_arm_l"])
+    score = C.joint_plane_score(pts, c, a, fit, 0.3, side_planes=True)
+    reach = 0.3 * arm.width
+    assert np.allclose(score, [0.02 / reach, -0.02 / reach, 0.0])
+    assert np.all(C.joint_plane_score(pts, c, a, fit, 0.3) == 0)      # off: no plane
+    hip = C.joint_plane_score(pts - [0.1, 0, 0.5], np.full(3, I["waist"]), np.full(3, I["thigh_l"]),
+                              fit, 0.3, side_planes=True)
+    assert np.all(hip == 0)
