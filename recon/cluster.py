@@ -442,7 +442,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
-    end of D at the joint, with the bisector of the two axes as normal (P's axis toward the joint
+    end of D at the joint (where the two columns overlap, P's end lying past D's end along P's
+    axis, through the middle of that overlap: both columns claim it), with the bisector of the two axes as normal (P's axis toward the joint
     plus D's axis away from it: the plane across a straight limb, the mitre of a bent one). The
     score is the signed distance to it (positive on D's side) over ``reach`` times D's width,
     clipped to [-1, 1].
@@ -505,6 +506,9 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
             normal = toward
         elif beyond < -mitre_band:
             normal = away
+        overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
+        if overlap > 0:  # the columns overlap along P's axis: the plane through its middle
+            origin = origin + 0.5 * overlap * toward
         out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
     return out
 

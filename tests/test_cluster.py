@@ -223,3 +223,15 @@ def test_side_joint_plane_is_the_arms_cross_section_through_the_shoulder():
     hip = C.joint_plane_score(pts - [0.1, 0, 0.5], np.full(3, I["waist"]), np.full(3, I["thigh_l"]),
                               fit, 0.3, side_planes=True)
     assert np.all(hip == 0)
+
+
+def test_joint_plane_splits_an_overlap_of_the_columns_in_its_middle():
+    """Upper arm down to z = 1.08, forearm from z = 1.12: the plane is at z = 1.10."""
+    upper = SectionShape("upper_arm_l", [0, 0, 1.4], [0, 0, 1.08], [0.045, 0.045], X)
+    fore = SectionShape("forearm_l", [0, 0, 1.12], [0, 0, 0.8], [0.045, 0.045], X)
+    fit = BodyFit(sections={"upper_arm_l": upper, "forearm_l": fore},
+                  joints={"elbow_l": np.array([0, 0, 1.1])})
+    z = np.array([1.13, 1.11, 1.10, 1.09, 1.07])
+    pts = np.column_stack([np.full(5, 0.045), np.zeros(5), z])
+    score = C.joint_plane_score(pts, np.full(5, I["upper_arm_l"]), np.full(5, I["forearm_l"]), fit, 0.3)
+    assert np.allclose(score, np.clip((1.10 - z) / (0.3 * fore.width), -1, 1))
