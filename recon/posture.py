@@ -315,10 +315,7 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
         Y = _cross(Z, X)
         frames = np.stack([X, Y, Z], axis=1)
         cands = []
-        # the deepest part of the volume is the pelvis and hips (the thighs join there), below
-        # the torso column's centre: so centres up to 0.10 H above it are searched (measured on the
-        # shipped library: the column's centre 0-0.18 m above the core, seated 0.06 m below)
-        for off in (-0.05, 0.0, 0.05, 0.10):
+        for off in (-0.05, 0.0, 0.05):
             c = centroid + off * body.stature * Z
             s = (_column_score(scorer, c, frames, L, rad, tmpl) - _column_score(scorer, c, frames, L, rad, ring)
                  - lam * (1.0 - np.abs(frames[:, 2, 2])))
@@ -1160,6 +1157,12 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"body sections could be fitted")
     _check_plausible(secs, pose.body)
     fitted = {k: v for k, v in secs.items() if k not in unfitted}
+    for prox, dist, *_ in LIMBS:
+        if prox in fitted and dist not in fitted:
+            # the elbow (knee) was placed where the axes of the two sections meet; without a
+            # trusted distal section it lies the model's length along the proximal one
+            p = fitted[prox]
+            fitted[prox] = p.replace(end=p.start + pose.sections[prox].length * p.axis)
     # whether the posture was found at all: doubted sections were placed too, and count here
     D = np.min([v.distance(work) for k, v in secs.items() if counts.get(k, 0) >= params.fit_min_points], axis=0)
     explained = float(np.mean(D < params.fit_coverage_distance))
