@@ -299,16 +299,16 @@ def _scaled_distance(r, widths):
 
 def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths: np.ndarray,
                   *, max_rounds: int = 20, k: int = 16, tree=None,
-                  keep_nearest: bool = False) -> np.ndarray:
+                  keep_nearest: float = 0.0) -> np.ndarray:
     """Three-or-more rule: copy the sections of the nearest point that has fewer (paper 3.2).
 
     Repeated until every point is in at most two sections; after ``max_rounds`` (or when a point has
     no such point among its ``k`` nearest) it keeps the two sections whose surfaces are nearest
     relative to their widths.
 
-    With ``keep_nearest`` (paper silent), the donor must also be in the section whose surface is
-    nearest to the point (relative to widths): the copy drops the farther claims, never the
-    surface the point lies on. Without it, an arm point against the chest below the shoulder (in
+    With ``keep_nearest`` > 0 (paper silent), a point nearer than ``keep_nearest`` widths to the
+    surface of its nearest section (relative to widths) copies only from a point also in that
+    section: the copy drops the farther claims, never the surface the point lies on. Without it, an arm point against the chest below the shoulder (in
     chest, waist and upper arm) copies the labels of the nearest torso point (chest and waist)
     and leaves its own arm: it is then meshed with the chest, across the armpit.
 
@@ -326,7 +326,9 @@ def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths:
     _, nb0 = tree.query(points[many0], k=k, workers=-1)   # counts only fall: one query will do
     nb0 = nb0.reshape(len(many0), k)
     if keep_nearest:
-        nearest = np.argmin(np.where(out[many0], _scaled_distance(r[many0], widths), np.inf), axis=1)
+        sd0 = np.where(out[many0], _scaled_distance(r[many0], widths), np.inf)
+        nearest = np.argmin(sd0, axis=1)
+        on = sd0[np.arange(len(many0)), nearest] <= float(keep_nearest)
     for _ in range(max_rounds):
         still = count[many0] >= 3
         if not still.any():
@@ -334,7 +336,7 @@ def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths:
         many, nb = many0[still], nb0[still]
         fewer = (count[nb] < count[many][:, None]) & (nb != many[:, None])
         if keep_nearest:
-            fewer &= out[nb, nearest[still][:, None]]
+            fewer &= out[nb, nearest[still][:, None]] | ~on[still][:, None]
         has = fewer.any(axis=1)
         if not has.any():
             break
@@ -438,7 +440,8 @@ SIDE_JOINT = 0.7
 
 
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
-                      reach: float, mitre_band: float = np.inf, side_planes: bool = False) -> np.ndarray:
+                      reach: float, mitre_band: float = np.inf, side_planes: bool = False,
+                      overlap_middle: bool = True) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -473,6 +476,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Widths of D: the mitre only where the joint is within this of D's end (default: always).
     side_planes : bool
         Planes at the side joints beside P's column (default: none at side joints).
+    overlap_middle : bool
+        Where the columns overlap, the plane through the middle of the overlap (else D's end).
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -507,7 +512,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         elif beyond < -mitre_band:
             normal = away
         overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
-        if overlap > 0:  # the columns overlap along P's axis: the plane through its middle
+        if overlap > 0 and overlap_middle:  # the columns overlap along P's axis: its middle
             origin = origin + 0.5 * overlap * toward
         out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
     return out
@@ -515,7 +520,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False):
+                   side_planes=False, overlap_middle=True):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -589,7 +594,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                              np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
-                                                           mitre_band, side_planes)
+                                                           mitre_band, side_planes, overlap_middle)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -649,7 +654,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        seam_width=radius * params.seam_width / params.neighbor_spacing
                        if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
-                       mitre_band=params.mitre_band, side_planes=params.side_joint_planes)
+                       mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
+                       overlap_middle=params.joint_plane_overlap_middle)
     return out
 
 

@@ -182,7 +182,8 @@ def test_three_or_more_keeps_the_surface_the_point_lies_on():
     widths = np.full(11, 0.3)
     paper = C.reduce_to_two(m, P, r, widths)
     assert paper[0].nonzero()[0].tolist() == [c, w]
-    kept = C.reduce_to_two(m, P, r, widths, keep_nearest=True)
+    kept = C.reduce_to_two(m, P, r, widths, keep_nearest=0.1)
+    assert C.reduce_to_two(m, P, r + 0.05, widths, keep_nearest=0.1)[0].nonzero()[0].tolist() == [c, w]  # off its surface: the paper's rule
     assert kept[0].nonzero()[0].tolist() == [c, a]
 
 
