@@ -308,9 +308,10 @@ def reduce_to_two(member: np.ndarray, points: np.ndarray, r: np.ndarray, widths:
 
     With ``keep_nearest`` > 0 (paper silent), a point nearer than ``keep_nearest`` widths to the
     surface of its nearest section (relative to widths) copies only from a point also in that
-    section: the copy drops the farther claims, never the surface the point lies on. Without it, an arm point against the chest below the shoulder (in
-    chest, waist and upper arm) copies the labels of the nearest torso point (chest and waist)
-    and leaves its own arm: it is then meshed with the chest, across the armpit.
+    section: the copy drops the farther claims, never the surface the point lies on. Without
+    it, an arm point against the chest below the shoulder (in chest, waist and upper arm)
+    copies the labels of the nearest torso point (chest and waist) and leaves its own arm: it
+    is then meshed with the chest, across the armpit.
 
     Returns a copy of ``member`` (n, 11).
     """
@@ -446,10 +447,10 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
     The plane of the joint between a proximal section P and a distal one D passes through the
     end of D at the joint (where the two columns overlap, P's end lying past D's end along P's
-    axis, through the middle of that overlap: both columns claim it), with the bisector of the two axes as normal (P's axis toward the joint
-    plus D's axis away from it: the plane across a straight limb, the mitre of a bent one). The
-    score is the signed distance to it (positive on D's side) over ``reach`` times D's width,
-    clipped to [-1, 1].
+    axis, through the middle of that overlap: both columns claim it), with the bisector of the
+    two axes as normal (P's axis toward the joint plus D's axis away from it: the plane across
+    a straight limb, the mitre of a bent one). The score is the signed distance to it
+    (positive on D's side) over ``reach`` times D's width, clipped to [-1, 1].
 
     Where the joint lies more than ``mitre_band`` widths of D past D's end (measured along P's
     axis), the body between that end and the joint still follows P: the boundary is P's cross
