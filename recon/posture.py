@@ -367,7 +367,8 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
     With the torso frame ``R`` (columns left, back, up), a thigh may rise above the horizontal of
     the torso only by flexing (forward or backward: which is the front is not known yet) more than
     it rises: a thigh does not reach up beside the torso (on a coarse volume, a leg chain could
-    otherwise follow the arm hanging next to it)."""
+    otherwise follow the arm hanging next to it), and a shin never rises above its thigh (knees bend
+    backwards only)."""
     from scipy.optimize import minimize
 
     L1, L2 = body.section_length(prox), body.section_length(dist)
@@ -383,6 +384,12 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
         return (up > params.match_thigh_max_rise) & (np.abs(d @ R[:, 1]) < up)
 
     s1[raised(dirs)] = -np.inf
+
+    def shin_up(d1, d2):
+        # a knee bends backwards only: the shin never rises above its thigh
+        if R is None or not prox.startswith("thigh"):
+            return np.zeros(np.broadcast_shapes(np.shape(d1)[:-1], np.shape(d2)[:-1]), bool)
+        return d2 @ R[:, 2] > np.maximum(d1 @ R[:, 2], 0.0) + params.match_thigh_max_rise
 
     def distal(elbow, d1, frames):
         # distal samples inside the proximal column weigh 0: no folding back over the same limb
@@ -405,6 +412,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
         s2 = distal(elbow, dirs[i], F)
         tot = s1[i] * L1 + s2 * L2
         tot[dirs @ dirs[i] < cos_max] = -np.inf
+        tot[shin_up(dirs[i], dirs)] = -np.inf
         tot[(L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)] = -np.inf
         j = int(np.argmax(tot))
         if tot[j] > best[0]:
@@ -416,7 +424,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
     def total(x):
         a = _tangent_dir(d1, x[0], x[1])
         b = _tangent_dir(d2, x[2], x[3])
-        if a @ b < cos_max or a @ outward < -params.match_max_adduction or raised(a) or \
+        if a @ b < cos_max or a @ outward < -params.match_max_adduction or raised(a) or shin_up(a, b) or \
                 (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
             return 10.0
         e = root + L1 * a
@@ -922,6 +930,13 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     c = new["chest"]
     chest = c.replace(start=waist.end, end=waist.end + c.length * _unit(c.end - waist.end + 1e-12 * c.axis))
     chest = _keep_dir(chest, c.axis, waist.end, old["chest"].length)
+    # the chest's top end hangs under the head, which the points place well (the chest's own
+    # direction is poorly fixed: the arms beside it); within 25 degrees of the waist's axis
+    h = new["head"]
+    target = h.start + h.axis * ((chest.end - h.start) @ h.axis)   # nearest point of the head's axis
+    d = _unit(target - waist.end)
+    if d @ waist.axis > np.cos(np.radians(25)):
+        chest = _keep_dir(chest, d, waist.end, old["chest"].length)
     out["chest"] = chest
     out["head"] = _keep_dir(new["head"], new["head"].axis, chest.end, new["head"].length)
     for prox, dist, root_name, _, _ in LIMBS:
@@ -1112,7 +1127,7 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     first = None
     for pose in poses:
         try:
-            fit, unfitted = _finish(work, pose, params)
+            fit, unfitted, _ = _finish(work, pose, params)
             break
         except ReconError as e:
             first = first or e
@@ -1176,7 +1191,7 @@ def _finish(work, pose: _Pose, params: FitParams):
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
-                   coarse=coarse, times={}), unfitted
+                   coarse=coarse, times={}), unfitted, explained
 
 
 def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
