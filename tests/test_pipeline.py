@@ -251,15 +251,22 @@ KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: a few 
                            "(armpit 0.36 %)"}
 
 
+#: Postures below the issue's 95 % "truth among labels", with their floor (measured 0.938, 0.930).
+#: Both lose most at the neck (chest points deep inside the chest's column, within T_d of the head
+#: only: "single", 1.3-1.4 %) and at the bent chest-waist joint (0.9-1.8 %); see
+#: ``python -m benchmarks.recon_table --bodies seated,squat``.
+BELOW_95 = {"seated": 0.935, "squat": 0.925}
+
+
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.xfail(reason=KNOWN[n], strict=True))
                                   if n in KNOWN else n for n in _shipped()])
 def test_shipped_posture_against_ground_truth(name, scored):
     r = _score(name, scored)
     prop, simple, limited = r["proposed"], r["simple"], r["limited"]
-    # sections of the points (the issue asks >= 95 %; measured "truth among labels" 0.910 (squat)
-    # to 0.968, 1/m-scored 0.895 to 0.954; see test_shipped_postures_on_average)
-    assert prop["accuracy"]["section_accuracy_any"] >= 0.905
-    assert prop["accuracy"]["section_accuracy"] >= 0.89
+    # sections of the points: the issue asks >= 95 % ("truth among labels"; measured 0.951 to 0.974
+    # except BELOW_95); 1/m-scored (a seam point in two sections scores 1/2) 0.916 (squat) to 0.958
+    assert prop["accuracy"]["section_accuracy_any"] >= BELOW_95.get(name, 0.95)
+    assert prop["accuracy"]["section_accuracy"] >= 0.91
     assert prop["accuracy"]["section_accuracy"] > simple["accuracy"]["section_accuracy"]
     # the paper's spurious-patch test
     assert prop["spurious"] < simple["spurious"]
@@ -271,9 +278,11 @@ def test_shipped_posture_against_ground_truth(name, scored):
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_shipped_postures_on_average(scored):
-    """Means over every shipped posture (measured: truth among labels 0.952, bridging 0.47 %)."""
+    """Means over every shipped posture (measured: truth among labels 0.959, 1/m-scored 0.945,
+    bridging 0.47 %)."""
     rows = [_score(n, scored)["proposed"] for n in _shipped()]
-    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in rows]) >= 0.95
+    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in rows]) >= 0.955
+    assert np.mean([r["accuracy"]["section_accuracy"] for r in rows]) >= 0.94
     assert np.mean([r["bridging"] for r in rows]) < 0.005
 
 
