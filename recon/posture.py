@@ -127,6 +127,8 @@ class FitParams:
     fit_doubt_cover: float = 0.5           # 2.3(2): an arm section both this little covered and
     fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
     fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen)
+    fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
+                                           # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
@@ -1167,7 +1169,7 @@ def _finish(work, pose: _Pose, params: FitParams):
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
-    if "waist" in unfitted or "chest" in unfitted or len(unfitted) > 6:
+    if "waist" in unfitted or "chest" in unfitted or len(unfitted) > params.fit_max_unfitted:
         raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
                          f"body sections could be fitted")
     _check_plausible(secs, pose.body)
