@@ -68,13 +68,18 @@ class ClusterParams:
         point's sections" / spurious / bridging area fractions): 0 -> 0.945 / 0.041 / 0.0050,
         0.25 -> 0.947 / 0.041 / 0.0051, 0.5 -> 0.949 / 0.041 / 0.0049, 1 -> 0.951 / 0.041 /
         0.0049, 2 -> 0.952 / 0.042 / 0.0049, 4 -> 0.953 / 0.042 / 0.0049 (squat: 0.87 at 0, 0.91 at
-        1, 0.92 at 4); 1 gains most without more spurious area;
-        it helps most at the neck, elbows and bent knees. The plane passes through the distal section's end,
-        or through the middle of the two columns' overlap where they overlap (chosen: with the
-        other rules of this release, mean truth among labels 0.958 -> 0.959, min 1/m-scored
-        0.911 -> 0.916; through the middle of the two ends also where they leave a gap, the
-        capsule body of tests/test_pipeline.py, whose chest and head leave 3 cm, fell 0.937 ->
-        0.926).
+        1, 0.92 at 4); 1 gains most without more spurious area; it helps most at the neck, elbows
+        and bent knees. The plane passes through the distal section's end, or through the middle
+        of the two columns' overlap where they overlap (chosen: with the other rules of this
+        release, mean truth among labels 0.958 -> 0.959, min 1/m-scored 0.911 -> 0.916; through
+        the middle of the two ends also where they leave a gap, the capsule body of
+        tests/test_pipeline.py, whose chest and head leave 3 cm, fell 0.937 -> 0.926).
+        Swept again with the planes of ``mitre_band``, ``side_joint_planes`` and the overlap
+        (truth among labels mean / squat, 1/m-scored min, heavy_standing's bridging): 0.5 ->
+        0.956 / 0.911, 0.897, 0.60 %; 1 -> 0.959 / 0.930, 0.916, 0.60 %; 2 -> 0.961 / 0.943,
+        0.927, 0.74 %; 4 and 8 -> 0.962 / 0.947, 0.926, 0.74 %; but the capsule body falls 0.937
+        -> 0.933 at 2 and 0.928 at 4 (the plane gives a dome around a narrower child to the
+        child): kept 1.
     side_joint_planes : bool
         Joint rule: at a side joint whose joint lies beside the proximal column (the shoulders),
         the plane through the joint across the distal axis also votes (chosen; paper silent; see
@@ -85,10 +90,9 @@ class ClusterParams:
         beyond the waist's column) 0.951 / 0.939 / 0.916: the hips keep no plane. Its cost:
         oracle seated's spurious area 0.041 -> 0.049 (shoulder-top points meshed with the chest);
         with the estimated posture (same fits), mean accuracy 0.798 -> 0.797, bridging 1.32 ->
-        1.30 %, spurious 0.048 both. The plane
-        votes only along the distal column, not in its cap: voting there too gave 0.959 / 0.946 /
-        0.913, but took the dome of the capsule body's arm (tests/test_pipeline.py) to the chest
-        (0.937 -> 0.935).
+        1.30 %, spurious 0.048 both. The plane votes only along the distal column, not in its
+        cap: voting there too gave 0.959 / 0.946 / 0.913, but took the dome of the capsule
+        body's arm (tests/test_pipeline.py) to the chest (0.937 -> 0.935).
     three_keep_nearest : float
         Three-or-more rule: a point that lies on a section's surface (nearer than this many of
         that section's widths) copies only from a neighbour that is also in that section
