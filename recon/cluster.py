@@ -7,7 +7,15 @@ The steps, each usable alone:
 3. `refine_by_distance`: per (theta, h) cell of a section, an Otsu threshold on r splits two peaks
    and keeps the smaller-r one, unless the cell is single-peaked (the T_n test).
 4. `adopt_unlabeled`, `reduce_to_two`, `resolve_two_sections`, `resolve_joints`: settle the points
-   left in no section, in three or more, and in two sections (paper section 3.2).
+   left in no section, in three or more, and in two sections (paper section 3.2). Where the paper
+   is silent (documented on `recon.params.ClusterParams`): the three-or-more rule never drops the
+   surface a point lies on; the joint rule's fronts are weighed with the model's joint plane
+   (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
+   the body follows where the joint lies inside the other, the arm's cross-section through the
+   shoulder).
+
+``python -m benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
+and which of these rules decided them.
 
 `cluster_points` chains them for ``method="proposed"`` or ``"simple"``. Memberships are ``(n, 11)``
 bool arrays in `recon.model.SECTIONS` order.
