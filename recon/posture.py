@@ -99,7 +99,8 @@ class FitParams:
     match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
     match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
-    match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen)
+    match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen; 3
+                                           # measured worse on child_standing, t_pose and seated)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
     match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
@@ -644,14 +645,11 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
     for rnd in range(max(1, params.match_rounds)):
         cands = _match_torso(scorer, centroid, body, params, starts)
         if rnd == 0 and stature is None:
-            # first size estimate: the body's extent along the torso axis near that axis; for an
-            # upright torso along +z near the vertical through its centre (a torso tilted by the
-            # coarse match onto an arm would miss the feet, and the size with them)
+            # first size estimate: the body's extent along the torso axis near that axis
             c, R = cands[0][1], cands[0][2]
-            ax = np.array([0.0, 0.0, 1.0]) if abs(R[2, 2]) > 0.8 else R[:, 2]
             rel = points - c
-            h = rel @ ax
-            near = np.linalg.norm(rel - np.outer(h, ax), axis=1) < 0.3
+            h = rel @ R[:, 2]
+            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
             if near.sum() > 50:
                 ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
                 if abs(R[2, 2]) > 0.8:
@@ -920,6 +918,15 @@ def _fine(points, pose: _Pose, params: FitParams):
     return secs, resid, counts
 
 
+def _turn_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit vector ``a`` to unit vector ``b``."""
+    v = _cross(a, b)
+    s = float(np.linalg.norm(v))
+    if s < 1e-9:
+        return np.eye(3)
+    return _rotvec(v / s * np.arctan2(s, float(a @ b)))
+
+
 def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     """Reconnect the independently adjusted sections at their joints."""
     out = {}
@@ -941,9 +948,19 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
         chest = _keep_dir(chest, d, waist.end, old["chest"].length)
     out["chest"] = chest
     out["head"] = _keep_dir(new["head"], new["head"].axis, chest.end, new["head"].length)
+    # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
+    # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
+    # the other), then each is taken onto its adjusted upper arm's axis
+    turn = _turn_between(old["chest"].axis, chest.axis)
+    roots = {}
+    for prox, *_ in LIMBS:
+        r0 = old[prox].start
+        if prox.startswith("upper_arm"):
+            r0 = chest.start + turn @ (r0 - old["chest"].start)
+        roots[prox] = new[prox].start + new[prox].axis * ((r0 - new[prox].start) @ new[prox].axis)
     for prox, dist, root_name, _, _ in LIMBS:
         p, q = new[prox], new[dist]
-        root = p.start + p.axis * ((old[prox].start - p.start) @ p.axis)
+        root = roots[prox]
         mid, sin = _closest_on_axes(p, q)
         if mid is None or sin < np.sin(np.radians(25)):
             # straight joint: keep the proximal length along the adjusted axis
