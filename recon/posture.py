@@ -13,9 +13,13 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    voxel weight inside the column: n on contour, 1 inside, `match_empty_weight` outside; minus the
    mean weight of samples beside the neck, where a body is empty; minus `match_upright_prior` x
    (1 - cos tilt): scanned people are mostly upright and a scanner knows its +z), refine the best
-   few by Nelder-Mead over translation and rotation, and keep, of the best
-   `match_torso_candidates` (each also with its roll taken from the two legs below it), the one
-   whose whole-body match scores best. The torso's radii are then measured on the points.
+   few by Nelder-Mead over translation and rotation. The best `match_torso_candidates`, and the
+   best upright one (within `match_upright_start` of +z, kept so while refined), each also with
+   its roll taken from the two legs below it, are matched whole (step 3), and the match whose
+   model explains most points (within `match_explain_distance`) wins: on a coarse volume (a sparse
+   scan, 40 mm voxels, where a hanging arm merges with the torso) the volume score ties an upright
+   torso with one tilted onto an arm, its wide axis turned front-back; the points tell them apart.
+   The torso's radii are then measured on the points.
 3. Sections from the chest outwards: chest (about the chest joint, within 20 degrees of the torso),
    head (about the neck), then thighs and lower legs, then upper arms and forearms (the paper does
    the arms before the legs; we place the legs first because hanging hands reach down beside the
@@ -23,7 +27,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    searched on a sphere of `match_directions` directions for its proximal section, the best
    `match_beam` of them are extended by the same search for the distal section (elbow or knee bend
    at most `match_max_bend` degrees, the limb pointing at most `match_max_adduction` across the
-   body), and the best chain is refined by Nelder-Mead. Voxels inside sections already placed weigh
+   body; a thigh rising above the torso's horizontal by more than `match_thigh_max_rise` only by
+   flexing front or back, a shin never above its thigh), and the best chain is refined by
+   Nelder-Mead. Voxels inside sections already placed weigh
    `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. The
    model's up/down along the torso axis: when the torso is within 60 degrees of the vertical its
    upper end is the one towards +z (clouds are in a +z up frame); otherwise both are matched and
@@ -32,7 +38,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    than `match_min_anchor_shift` from the model's, the torso slides (at most
    `match_max_anchor_shift`) so that the head hangs from it, and the sections are placed again.
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
-   along the torso axis (at least `match_min_first_stature`); then each leg chain's length (hip to
+   along the torso axis (at least `match_min_first_stature`; every torso candidate is matched
+   again, locally, at that size); then each leg chain's length (hip to
    the farthest point along its lower leg) is measured and, when the legs' median ratio to the
    standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
    (`match_size_from_crown` = 1 measures crown to sole instead for adult-size bodies, which does
@@ -44,17 +51,26 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    distance of its points from the axis, and its free end (head top, fingertips, sole) found from
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
-   axis at the model's proportions (straight joints); the whole model slides along the torso axis
-   so that the neck lies a standard head length below the detected crown.
+   axis at the model's proportions (straight joints, and a joint whose distal section is
+   unfitted); the chest's top end is aimed at the fitted head (within 25 degrees of the waist's
+   axis; the arms beside it fix the chest's own direction poorly) and the shoulders turn with it;
+   the whole model slides along the torso axis so that the neck lies a standard head length below
+   the detected crown.
 6. Front and back, hence left and right, come from the data, never from the scanner: feet point
-   forward from the shins, knees bend backward, hips bend forward. A scan rotated about the vertical
-   gives the same fit.
+   forward from the shins, knees bend backward, hips bend forward. The foot is the lowest part of
+   the leg chain (against the scanner's +z), not the fitted shin's end, which in a sparse scan
+   falls short of the sole onto the calf (a calf bulges backwards: left and right came out swapped
+   at 20-30 mm). A scan rotated about the vertical gives the same fit.
 7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
    cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
    warning, rather than placed wrongly. A fit whose sections (all placed ones) explain fewer than
-   `fit_min_coverage` of the points within `fit_coverage_distance` is not a body (`ReconError`).
+   `fit_min_coverage` of the points within `fit_coverage_distance`, or with more than
+   `fit_max_unfitted` sections unfitted, failed: the fit is made again from the next torso
+   candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
+   when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
+   silently as a fit.
 """
 
 from __future__ import annotations
