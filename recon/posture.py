@@ -697,6 +697,11 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
                 if best is None or p.explained > best.explained:
                     best = p
         alternatives += [p for p in placed if p is not best]
+        if pose is not None and best.body.stature > pose.body.stature and best.explained < pose.explained:
+            # matched again larger, the model explains fewer points (a larger model explains more
+            # when it is right): the size came from a wrong pose; keep the first
+            alternatives.append(best)
+            break
         if pose is not None:
             alternatives.append(pose)
         pose = best
