@@ -115,7 +115,9 @@ class FitParams:
     match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
     match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
     match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
-    match_max_bend: float = 150.0          # 2.3(2): largest elbow/knee bend searched, degrees (chosen)
+    match_max_bend: float = 150.0          # 2.3(2): largest knee bend searched, degrees (chosen)
+    match_max_elbow_bend: float = 140.0    # 2.3(2): largest elbow bend searched, degrees (anatomy: about 145;
+                                           # a forearm folded back down a raised arm was matched at 150; chosen)
     match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen; 3
                                            # measured worse on child_standing, t_pose and seated)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
@@ -421,7 +423,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
         return np.where(inside, np.minimum(w, scorer.claimed), w).mean(axis=-1)
 
     order = np.argsort(-s1)
-    cos_max = np.cos(np.radians(params.match_max_bend))
+    cos_max = np.cos(np.radians(params.match_max_bend if prox.startswith("thigh") else params.match_max_elbow_bend))
     best = (-np.inf, None, None)
     kept = []
     for i in order:
