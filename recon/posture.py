@@ -107,6 +107,10 @@ class FitParams:
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
                                            # each also with its roll from the legs (chosen)
     match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
+    match_min_shell_score: float = 0.3     # 2.3(2): ... unless placed on its seen surface, by a shell score at
+                                           # least this (a limb seen from one side only; chosen)
+    match_shell_near: float = 0.025        # 2.3(2): shell score: a sample in a contour voxel or next to one hits;
+                                           # only in a contour voxel when voxels are wider than this, m (chosen)
     match_thigh_max_rise: float = 0.2      # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
                                            # must flex front or back more than it rises (anatomy; chosen)
     match_upright_start: float = 5.0       # 2.3(1): the best torso within this of +z (degrees) is always among
@@ -233,6 +237,22 @@ class _Scorer:
         w = vol.weights(params.contour_weight, params.match_empty_weight)
         self.w = ndimage.gaussian_filter(w, 0.7, mode="constant", cval=self.empty)
         self._ndimage = ndimage
+        # for the shell score (a limb seen from one side only): contour voxels and their 26
+        # neighbours (the contour voxels alone when voxels are wider than `match_shell_near`), and
+        # voxels inside sections already placed
+        self.near = vol.contour if vol.size > params.match_shell_near else \
+            ndimage.binary_dilation(vol.contour, structure=np.ones((3, 3, 3), bool))
+        self.taken = np.zeros(vol.shape, bool)
+
+    def flags(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(near contour, inside a placed section) at ``pts`` (..., 3) metres, nearest voxel."""
+        shp = pts.shape[:-1]
+        idx = np.rint(self.vol.index(pts.reshape(-1, 3))).astype(np.int64)
+        ok = np.all((idx >= 0) & (idx < np.array(self.vol.shape)), axis=1)
+        idx = np.where(ok[:, None], idx, 0)
+        near = self.near[idx[:, 0], idx[:, 1], idx[:, 2]] & ok
+        taken = self.taken[idx[:, 0], idx[:, 1], idx[:, 2]] & ok
+        return near.reshape(shp), taken.reshape(shp)
 
     def lookup(self, pts: np.ndarray) -> np.ndarray:
         """Weights at ``pts`` (..., 3) metres, trilinear."""
@@ -256,6 +276,7 @@ class _Scorer:
         r, _, _ = shape.coords(g * v.size + v.origin)
         g = g[r < 0]
         self.w[g[:, 0], g[:, 1], g[:, 2]] = np.minimum(self.w[g[:, 0], g[:, 1], g[:, 2]], self.claimed)
+        self.taken[g[:, 0], g[:, 1], g[:, 2]] = True
 
 
 #: Sample template inside a unit column: rows (x/a, y/b, h/L) with h in [0, 1].
@@ -278,6 +299,39 @@ def _column_score(scorer: _Scorer, start, frames, length, radii, template) -> np
     return scorer.lookup(pts).mean(axis=-1)
 
 
+#: Shell score samples in a unit column, away from the joints at its ends (h in [0.15, 0.95]): its
+#: surface, 12 around x 6 along, each at 0.7, 1 and 1.3 radii (a limb thinner or thicker than the
+#: model's), and its axis.
+_SHELL_RING = _template(6, (1.0,), 12, h0=0.15) * [1, 1, 0.95]
+_SHELL_RING = _SHELL_RING[np.hypot(_SHELL_RING[:, 0], _SHELL_RING[:, 1]) > 0.5]       # (72, 3)
+_SHELL_SURF = np.concatenate([_SHELL_RING * [f, f, 1.0] for f in (0.7, 1.0, 1.3)])  # (216, 3)
+_SHELL_CORE = _template(6, (), 1, h0=0.15) * [1, 1, 0.95]                          # (6, 3)
+
+
+def _shell_score(scorer: _Scorer, start, frames, length, radii, avoid=None) -> np.ndarray:
+    """Fraction of a column's surface samples near contour voxels not inside placed sections (at
+    any of the three radii), minus the fraction of its axis samples near contour: (m,) for
+    ``start`` (m, 3) or (3,), ``frames`` (m, 3, 3). A limb seen from one side only (a seated
+    person's thighs, seen from above: no inside voxels) scores about 0.5 on its true axis; a column
+    through a surface scores below 0. The axis of a limb may run inside a placed section (a seated
+    person's thigh under the waist's claimed margin): that alone is no penalty. ``avoid`` = (root,
+    d, length, radius): samples within that column (the proximal section of the chain) count as
+    inside a placed section, and on the axis as a penalty (no folding back over the same limb)."""
+    scale = np.array([radii[0], radii[1], length])
+    out = []
+    for tmpl in (_SHELL_SURF, _SHELL_CORE):
+        pts = np.asarray(start)[..., None, :] + (tmpl * scale) @ frames
+        near, taken = scorer.flags(pts)
+        fold = np.zeros(near.shape, bool)
+        if avoid is not None:
+            root, d, L, r = avoid
+            h = np.clip((pts - root) @ d, 0.0, L)
+            fold = np.linalg.norm(pts - root - h[..., None] * d, axis=-1) < r
+        out.append(near & ~taken & ~fold if tmpl is _SHELL_SURF else near | fold)
+    surf = out[0].reshape(out[0].shape[:-1] + (3, -1)).any(axis=-2)
+    return surf.mean(axis=-1) - out[1].mean(axis=-1)
+
+
 def _frames_from_dirs(d: np.ndarray) -> np.ndarray:
     """(m, 3, 3) frames (rows x, y, axis) for unit directions ``d`` (m, 3)."""
     u = _perp(d)
@@ -295,6 +349,7 @@ class _Pose:
     sections: dict
     score: float = 0.0
     section_scores: dict = None   # mean volume weight of each limb section where it was placed
+    shell_scores: dict = None     # shell score of each limb section placed by the shell search
     explained: float = 0.0        # fraction of the points near the model's surface
 
 
@@ -383,8 +438,9 @@ def _column(name, start, d, length, radii, frame_x, closed=(True, True)) -> Sect
                         frame_x=frame_x, closed=closed)
 
 
-def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None):
-    """Best (d1, d2, score) of a limb chain from ``root`` on the volume.
+def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None, shell=False):
+    """Best (d1, d2, score) of a limb chain from ``root`` on the volume (``shell``: by the shell
+    score, for a limb seen from one side only).
 
     With the torso frame ``R`` (columns left, back, up), a thigh may rise above the horizontal of
     the torso only by flexing (forward or backward: which is the front is not known yet) more than
@@ -396,7 +452,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
     L1, L2 = body.section_length(prox), body.section_length(dist)
     r1, r2 = body.radii(kind_of(prox)), body.radii(kind_of(dist))
     F = _frames_from_dirs(dirs)
-    s1 = _column_score(scorer, root, F, L1, r1, _LIMB_T)
+    s1 = _shell_score(scorer, root, F, L1, r1) if shell else _column_score(scorer, root, F, L1, r1, _LIMB_T)
     s1[dirs @ outward < -params.match_max_adduction] = -np.inf
 
     def raised(d):
@@ -415,6 +471,8 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
 
     def distal(elbow, d1, frames):
         # distal samples inside the proximal column weigh 0: no folding back over the same limb
+        if shell:
+            return _shell_score(scorer, elbow, frames, L2, r2, avoid=(root, d1, L1, r1[0]))
         loc = _LIMB_T * np.array([r2[0], r2[1], L2])
         pts = elbow + loc @ frames
         w = scorer.lookup(pts)
@@ -450,8 +508,9 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None)
                 (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
             return 10.0
         e = root + L1 * a
-        return -(_column_score(scorer, root, _frames_from_dirs(a[None]), L1, r1, _LIMB_T)[0] * L1
-                 + distal(e, a, _frames_from_dirs(b[None]))[0] * L2)
+        fa = _frames_from_dirs(a[None])
+        s1 = _shell_score(scorer, root, fa, L1, r1) if shell else _column_score(scorer, root, fa, L1, r1, _LIMB_T)
+        return -(s1[0] * L1 + distal(e, a, _frames_from_dirs(b[None]))[0] * L2)
 
     simplex = np.vstack([np.zeros(4), np.eye(4) * 0.12])
     res = minimize(total, np.zeros(4), method="Nelder-Mead",
@@ -493,11 +552,13 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
 
     scorer = copy.copy(scorer_base)
     scorer.w = scorer_base.w.copy()
+    scorer.taken = scorer_base.taken.copy()
     ex, ez = R[:, 0], R[:, 2]
     L = _torso_len(body)
     pelvis = centre - 0.5 * L * ez
     secs = {}
     fit_scores = {}
+    shell_scores = {}
     total = 0.0
     Lw = body.section_length("waist")
     waist = _column("waist", pelvis, ez, Lw, body.radii("waist"), ex)
@@ -535,16 +596,40 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
             root = pelvis + R @ off
         outward = ex if root_name.endswith("_l") else -ex
         d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R)
-        p = _column(prox, root, d1, body.section_length(prox), body.radii(kind_of(prox)), _perp(d1))
-        q = _column(dist, p.end, d2, body.section_length(dist), body.radii(kind_of(dist)), _perp(d2))
+        p, q, sc_pq = _chain_columns(scorer, root, d1, d2, prox, dist, body)
+        if min(sc_pq) < params.match_min_section_score:
+            # a section in empty voxels: a limb seen from one side only (a seated person's thighs,
+            # seen from above) holds no inside voxels; search the chain again on its seen surface
+            e1, e2, _ = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R, shell=True)
+            p2, q2, sc2 = _chain_columns(scorer, root, e1, e2, prox, dist, body)
+            new = _chain_shell(scorer, root, p2, q2)
+            if sum(new) > sum(_chain_shell(scorer, root, p, q)):
+                p, q, sc_pq = p2, q2, sc2
+                shell_scores[prox], shell_scores[dist] = new
         secs[prox], secs[dist] = p, q
-        for sec in (p, q):   # how well each section sits in the volume (before claiming it)
-            fit_scores[sec.name] = float(_column_score(scorer, sec.start, sec.frame[None], sec.length,
-                                                       sec.radii, _LIMB_T)[0])
+        fit_scores[prox], fit_scores[dist] = sc_pq
         scorer.claim(p)
         scorer.claim(q)
         total += s
-    return _Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores)
+    return _Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores,
+                 shell_scores=shell_scores)
+
+
+def _chain_columns(scorer, root, d1, d2, prox, dist, body):
+    """The two columns of a limb chain from ``root`` along ``d1``, ``d2`` and how well each sits
+    in the volume (mean weight, before claiming them)."""
+    p = _column(prox, root, d1, body.section_length(prox), body.radii(kind_of(prox)), _perp(d1))
+    q = _column(dist, p.end, d2, body.section_length(dist), body.radii(kind_of(dist)), _perp(d2))
+    return p, q, tuple(float(_column_score(scorer, c.start, c.frame[None], c.length, c.radii, _LIMB_T)[0])
+                       for c in (p, q))
+
+
+def _chain_shell(scorer, root, p: SectionShape, q: SectionShape) -> tuple:
+    """Shell scores (`_shell_score`) of a chain's two columns: (proximal, distal)."""
+    a = _shell_score(scorer, p.start, p.frame[None], p.length, p.radii)[0]
+    b = _shell_score(scorer, q.start, q.frame[None], q.length, q.radii,
+                     avoid=(root, p.axis, p.length, p.radii[0]))[0]
+    return float(a), float(b)
 
 
 def _explained(points, sections: dict, near: float) -> float:
@@ -1196,17 +1281,22 @@ def _finish(work, pose: _Pose, params: FitParams):
     sign = _front_sign(work, secs, pose.R)
     coarse_secs = dict(pose.sections)
     coarse_scores = dict(pose.section_scores or {})
+    shell_scores = dict(pose.shell_scores or {})
     if sign < 0:
         secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in secs.items()}
         resid = {_swap_sides(k): v for k, v in resid.items()}
         counts = {_swap_sides(k): v for k, v in counts.items()}
         coarse_secs = {_swap_sides(k): v.replace(name=_swap_sides(k)) for k, v in coarse_secs.items()}
         coarse_scores = {_swap_sides(k): v for k, v in coarse_scores.items()}
+        shell_scores = {_swap_sides(k): v for k, v in shell_scores.items()}
 
     cover = _section_cover(work, secs, params.fit_coverage_distance)
+    back = sign * pose.R[:, 1]
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
+                     or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
                      or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
-                     or coarse_scores.get(n, 1.0) < params.match_min_section_score
+                     or (coarse_scores.get(n, 1.0) < params.match_min_section_score
+                         and shell_scores.get(n, -1.0) < params.match_min_shell_score)
                      or (kind_of(n) in ("upper_arm", "forearm") and (
                          cover.get(n, 0.0) < params.fit_doubt_min_cover or (
                              cover.get(n, 0.0) < params.fit_doubt_cover and resid.get(n, 0.0) > params.fit_doubt_rms))))
@@ -1232,12 +1322,20 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"the fitted model explains only "
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
-    back = sign * pose.R[:, 1]
     joints = _joints(fitted, pose.body, back)
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted, explained
+
+
+def _arm_behind(d: np.ndarray, R: np.ndarray, back: np.ndarray) -> bool:
+    """Whether an upper arm along ``d`` (3,) raises its elbow above the shoulder behind it: pointing
+    up (torso frame ``R``, columns left, back, up) and more backwards (``back``) than sideways or
+    upwards. A shoulder extends about 60 degrees from hanging and opens at most about 45 degrees
+    behind the frontal plane: such an arm was fitted onto the shoulder of a misplaced torso."""
+    up, bk, side = float(d @ R[:, 2]), float(d @ back), abs(float(d @ R[:, 0]))
+    return up > 0 and bk > max(side, up)
 
 
 def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
