@@ -597,13 +597,19 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
         outward = ex if root_name.endswith("_l") else -ex
         d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R)
         p, q, sc_pq = _chain_columns(scorer, root, d1, d2, prox, dist, body)
-        if min(sc_pq) < params.match_min_section_score:
-            # a section in empty voxels: a limb seen from one side only (a seated person's thighs,
-            # seen from above) holds no inside voxels; search the chain again on its seen surface
+        if sc_pq[0] < params.match_min_section_score:
+            # the limb's root section in empty voxels: a limb seen from one side only (a seated
+            # person's thighs, seen from above) holds no inside voxels; search the chain again on
+            # its seen surface (a distal section alone in empty voxels is listed, as before)
             e1, e2, _ = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R, shell=True)
             p2, q2, sc2 = _chain_columns(scorer, root, e1, e2, prox, dist, body)
-            new = _chain_shell(scorer, root, p2, q2)
-            if sum(new) > sum(_chain_shell(scorer, root, p, q)):
+            new, old = _chain_shell(scorer, root, p2, q2), _chain_shell(scorer, root, p, q)
+            # kept only when it places the sections the volume could not (a weak shell placement
+            # would change the whole match for nothing: those sections are listed anyway);
+            # otherwise the volume's placement is judged on its seen surface too
+            shell_scores[prox], shell_scores[dist] = old
+            if sum(new) > sum(old) and all(b >= params.match_min_shell_score for a, b in zip(sc_pq, new)
+                                           if a < params.match_min_section_score):
                 p, q, sc_pq = p2, q2, sc2
                 shell_scores[prox], shell_scores[dist] = new
         secs[prox], secs[dist] = p, q
