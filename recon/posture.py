@@ -30,7 +30,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    body; a thigh rising above the torso's horizontal by more than `match_thigh_max_rise` only by
    flexing front or back, a shin never above its thigh), and the best chain is refined by
    Nelder-Mead. Voxels inside sections already placed weigh
-   `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. The
+   `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. A limb
+   seen from one side only holds no inside voxels (a seated person's thighs under the 2 mm scanner,
+   seen from above: a thigh on its bone scores -0.8 on the volume): when a chain's root section
+   lands in empty voxels (below `match_min_section_score`), the chain is searched again by a shell
+   score (surface samples near contour voxels, at 0.7-1.3 radii, minus axis samples near them) and
+   that placement kept when its sections reach `match_min_shell_score`. The
    model's up/down along the torso axis: when the torso is within 60 degrees of the vertical its
    upper end is the one towards +z (clouds are in a +z up frame); otherwise both are matched and
    the better total score wins. The volume pins the torso poorly along its own axis (an arm held
@@ -65,7 +70,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
-   warning, rather than placed wrongly. A fit whose sections (all placed ones) explain fewer than
+   warning, rather than placed wrongly. A section in empty voxels whose seen surface fits it (shell
+   score at least `match_min_shell_score`) is kept. An upper arm raising its elbow behind the
+   shoulder (pointing up, and more backwards than sideways or upwards: not anatomy) was fitted onto
+   the shoulder of a misplaced torso and is listed. A fit whose sections (all placed ones) explain fewer than
    `fit_min_coverage` of the points within `fit_coverage_distance`, or with more than
    `fit_max_unfitted` sections unfitted, failed: the fit is made again from the next torso
    candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
