@@ -33,7 +33,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. A limb
    seen from one side only holds no inside voxels (a seated person's thighs under the 2 mm scanner,
    seen from above: a thigh on its bone scores -0.8 on the volume): when a chain's root section
-   lands in empty voxels (below `match_min_section_score`), the chain is searched again by a shell
+   lands in empty voxels (below `match_min_section_score`) of a fine volume (voxels at most
+   `match_shell_voxel`), the chain is searched again by a shell
    score (surface samples near contour voxels, at 0.7-1.3 radii, minus axis samples near them) and
    that placement kept when its sections reach `match_min_shell_score`. The
    model's up/down along the torso axis: when the torso is within 60 degrees of the vertical its
@@ -117,8 +118,10 @@ class FitParams:
     match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
     match_min_shell_score: float = 0.3     # 2.3(2): ... unless placed on its seen surface, by a shell score at
                                            # least this (a limb seen from one side only; chosen)
-    match_shell_near: float = 0.025        # 2.3(2): shell score: a sample in a contour voxel or next to one hits;
-                                           # only in a contour voxel when voxels are wider than this, m (chosen)
+    match_shell_voxel: float = 0.025       # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
+                                           # scans (15 mm voxels). Measured: at 0.035 (10 mm scans, 25-30 mm voxels)
+                                           # squat k=3 went 8 -> 17 cm; on 40 mm voxels (20 mm scans) a rescued arm
+                                           # let a misplaced child's fit through (chosen)
     match_thigh_max_rise: float = 0.2      # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
                                            # must flex front or back more than it rises (anatomy; chosen)
     match_upright_start: float = 5.0       # 2.3(1): the best torso within this of +z (degrees) is always among
@@ -246,10 +249,8 @@ class _Scorer:
         self.w = ndimage.gaussian_filter(w, 0.7, mode="constant", cval=self.empty)
         self._ndimage = ndimage
         # for the shell score (a limb seen from one side only): contour voxels and their 26
-        # neighbours (the contour voxels alone when voxels are wider than `match_shell_near`), and
-        # voxels inside sections already placed
-        self.near = vol.contour if vol.size > params.match_shell_near else \
-            ndimage.binary_dilation(vol.contour, structure=np.ones((3, 3, 3), bool))
+        # neighbours, and voxels inside sections already placed
+        self.near = ndimage.binary_dilation(vol.contour, structure=np.ones((3, 3, 3), bool))
         self.taken = np.zeros(vol.shape, bool)
 
     def flags(self, pts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -605,7 +606,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
         outward = ex if root_name.endswith("_l") else -ex
         d1, d2, s = _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R)
         p, q, sc_pq = _chain_columns(scorer, root, d1, d2, prox, dist, body)
-        if sc_pq[0] < params.match_min_section_score:
+        if sc_pq[0] < params.match_min_section_score and scorer.vol.size <= params.match_shell_voxel:
             # the limb's root section in empty voxels: a limb seen from one side only (a seated
             # person's thighs, seen from above) holds no inside voxels; search the chain again on
             # its seen surface (a distal section alone in empty voxels is listed, as before)

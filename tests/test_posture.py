@@ -317,7 +317,7 @@ def _fit_or_refuse(name, resolution, k, rot=0.0):
     ("standing", 0.02, 1, 0), ("standing", 0.02, 3, 0), ("standing", 0.02, 1, 137),
     ("standing", 0.03, 1, 0), ("standing", 0.03, 3, 0),
     ("t_pose", 0.02, 1, 0), ("woman_standing", 0.02, 1, 0), ("walking", 0.02, 3, 0),
-    ("tall_standing", 0.02, 1, 0), ("a_pose", 0.02, 1, 0),
+    ("tall_standing", 0.02, 1, 0), ("a_pose", 0.02, 1, 0), ("seated", 0.02, 1, 0),
 ])
 def test_sparse_scans_are_fitted_near_the_body_or_refused(name, resolution, k, rot):
     """Each of these was a silent nonsense fit before (left and right swapped by the calf taken for
