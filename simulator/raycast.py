@@ -59,8 +59,8 @@ class RayCaster:
 
         Returns
         -------
-        face : (n,) int64
-            Index of the first triangle hit, -1 for a miss.
+        face : (n,) int32
+            Index of the first triangle hit, -1 for a miss (Embree's own array, not widened).
         distance : (n,) float32
             Distance along the ray to the hit (undefined where ``face == -1``).
         """
@@ -69,9 +69,9 @@ class RayCaster:
         if self.log is not None:
             self.log.append(("first_hit", o, d, None))
         if len(o) == 0:
-            return np.empty(0, np.int64), np.empty(0, np.float32)
+            return np.empty(0, np.int32), np.empty(0, np.float32)
         out = self._scene.run(o, d, output=1)
-        return out["primID"].astype(np.int64), out["tfar"]
+        return out["primID"], out["tfar"]
 
     def occluded(self, origins: np.ndarray, directions: np.ndarray,
                  max_distance: np.ndarray | float | None = None) -> np.ndarray:

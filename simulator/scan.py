@@ -217,7 +217,7 @@ class Scanner:
             d32 = axis.astype(np.float32)[None, :]
         face, t = self.caster.first_hit(o32, d32)
         hit = np.flatnonzero(face >= 0)         # np.take: much faster than fancy indexing on (n, 3)
-        face, t = face[hit], t[hit].astype(np.float64)[:, None]
+        face, t = face[hit].astype(np.int64), t[hit].astype(np.float64)[:, None]
         if perspective:
             d32 = np.take(d32, hit, axis=0)
             points = o32[0] + t * d32
