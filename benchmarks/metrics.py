@@ -248,10 +248,12 @@ class _Pieces:
         """Per row of ``p``, the nearest of its candidate pieces: (distance, face, point)."""
         c = closest_point_on_triangles(self.tri[piece], p[row])
         d = np.linalg.norm(c - p[row], axis=1)
-        order = np.lexsort((d, row))
-        first = np.ones(len(order), dtype=bool)
-        first[1:] = row[order][1:] != row[order][:-1]
-        best = order[first]
+        # ``row`` is sorted and holds every row of ``p``: per run of equal rows, the first
+        # candidate at the run's smallest distance (no sort needed)
+        starts = np.flatnonzero(np.r_[True, row[1:] != row[:-1]])
+        dmin = np.minimum.reduceat(d, starts)
+        at_min = np.flatnonzero(d == np.repeat(dmin, np.diff(np.r_[starts, len(d)])))
+        best = at_min[np.r_[True, row[at_min][1:] != row[at_min][:-1]]]
         return d[best], self.owner[piece[best]], c[best]
 
     def nearest_k(self, p, k):
@@ -358,6 +360,9 @@ class SurfaceIndex:
             p = points[s:s + chunk]
             d, f, c, exact = self._fine.nearest_k(p, self.k)
             redo = np.nonzero(~exact)[0]
+            if len(redo):   # farther from the surface: four times the pieces, then all in reach
+                d[redo], f[redo], c[redo], exact = self._fine.nearest_k(p[redo], 4 * self.k)
+                redo = redo[~exact]
             if len(redo):
                 d[redo], f[redo], c[redo] = self._coarse.within(p[redo], d[redo])
             dist[s:s + len(p)], face[s:s + len(p)], closest[s:s + len(p)] = d, f, c
