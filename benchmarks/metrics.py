@@ -286,8 +286,9 @@ class SurfaceIndex:
       (`split_long_edges`), whose centroids go in a k-d tree. A query computes the exact closest
       point on the pieces of its ``k`` nearest centroids; the answer is provably exact when its
       distance plus the largest piece radius does not exceed the distance of the k-th centroid
-      (no other piece can then be nearer). Queries failing this check (far from the surface) are
-      answered from every piece, of a second cut 8x coarser, whose centroid lies within that bound.
+      (no other piece can then be nearer). Queries failing this check (farther from the surface)
+      try again with ``4 k`` pieces, and those still failing are answered from every piece, of a
+      second cut 8x coarser, whose centroid lies within that bound.
 
     Parameters
     ----------
