@@ -62,6 +62,13 @@ _F = dict(
 #: The rig's spine joints lie behind the torso's axis (towards the back), as fractions of stature.
 SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.011)
 
+#: The rig's hip joints (femoral heads) lie behind and outside the top of the thigh's column, as
+#: fractions of stature: the mean offset from the fitted thigh start to the rig's hip joint on
+#: `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose (4.1 cm back,
+#: 2.2 cm out for a 1.76 m body; sd 1.1 and 1.2 cm). Measured on the posture's frame, so it holds
+#: for a thigh raised or turned.
+HIP_OFFSET = dict(back=0.023, out=0.0127)
+
 # radii (a across, b front-back), metres for the 1.75 m body
 _R = dict(
     head=(0.078, 0.092), chest=(0.160, 0.115), waist=(0.150, 0.110),

@@ -91,7 +91,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import ReconError
-from .bodymodel import LIMBS, SPINE_BACK, StandardBody, kind_of, standard_body
+from .bodymodel import HIP_OFFSET, LIMBS, SPINE_BACK, StandardBody, kind_of, standard_body
 from .cloud import check_points
 from .model import SECTIONS, BodyFit, SectionShape
 from .volume import Volume, voxel_size, voxelize
@@ -1222,6 +1222,12 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray) -> dict:
             else:  # soles are rarely seen: the ankle lies a standard shank length below the knee
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
                 j[c] = q.start + seg * q.axis
+    if "waist" in secs:   # the rig's hip joints lie behind and outside the thighs' tops
+        left = _unit(_cross(back, secs["waist"].axis))
+        for side, sign in (("l", 1.0), ("r", -1.0)):
+            if f"hip_{side}" in j:
+                j[f"hip_{side}"] = j[f"hip_{side}"] + body.stature * (
+                    HIP_OFFSET["back"] * back + sign * HIP_OFFSET["out"] * left)
     return {k: np.asarray(v, dtype=float) for k, v in j.items()}
 
 
