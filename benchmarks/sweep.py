@@ -382,7 +382,8 @@ def _drive(engine, sweep: Sweep, groups: dict, store: ResultStore, meter, keeper
         pending[future] = ("scan", scan_id)
     try:
         while pending:
-            for future in engine.wait(list(pending)):
+            done = engine.wait(list(pending))
+            for future in [f for f in pending if f in done]:   # oldest first
                 kind, what = pending[future]
                 if kind == "scan":
                     scanned = engine.result_ref(future)
@@ -405,6 +406,12 @@ def _drive(engine, sweep: Sweep, groups: dict, store: ResultStore, meter, keeper
         # A local worker died. The tasks it may have been running are the oldest unfinished
         # ones (the pool is first in, first out): record them as failed, so that a rerun goes on
         # past the crash (--retry-failed redoes innocent bystanders).
+        # Tasks that finished before the crash are no suspects: store what they returned.
+        for future, (kind, what) in list(pending.items()):
+            if future.done() and not future.cancelled() and future.exception() is None:
+                del pending[future]
+                if kind == "job":
+                    store_row(what, future.result())
         n = getattr(engine, "workers", 1)
         suspects = list(pending.values())[:n]
         note = "" if n == 1 else f" (or a task running beside it: {n} workers)"
