@@ -31,11 +31,10 @@ import warnings
 
 import numpy as np
 
+from recon.bodymodel import LIMBS
+
 #: Limb sections and the ground-truth bone each follows.
-BONES = {"upper_arm_l": ("shoulder_l", "elbow_l"), "upper_arm_r": ("shoulder_r", "elbow_r"),
-         "forearm_l": ("elbow_l", "wrist_l"), "forearm_r": ("elbow_r", "wrist_r"),
-         "thigh_l": ("hip_l", "knee_l"), "thigh_r": ("hip_r", "knee_r"),
-         "lower_leg_l": ("knee_l", "ankle_l"), "lower_leg_r": ("knee_r", "ankle_r")}
+BONES = {sec: bone for prox, dist, a, b, c in LIMBS for sec, bone in ((prox, (a, b)), (dist, (b, c)))}
 
 CONDITIONS = ("k1", "k1_rot137", "k3")
 

@@ -8,30 +8,10 @@ import warnings
 import numpy as np
 import pytest
 
+from benchmarks.fit_table import rot_z as _rz
+from benchmarks.fit_table import score_fit as _scores
 from recon import FitParams, ReconError, estimate_posture, fit_section
 from recon.model import SECTIONS, SectionShape
-
-#: Limb sections and the ground-truth bone they follow.
-BONES = {"upper_arm_l": ("shoulder_l", "elbow_l"), "upper_arm_r": ("shoulder_r", "elbow_r"),
-         "forearm_l": ("elbow_l", "wrist_l"), "forearm_r": ("elbow_r", "wrist_r"),
-         "thigh_l": ("hip_l", "knee_l"), "thigh_r": ("hip_r", "knee_r"),
-         "lower_leg_l": ("knee_l", "ankle_l"), "lower_leg_r": ("knee_r", "ankle_r")}
-
-
-def _rz(deg):
-    a = np.radians(deg)
-    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
-
-
-def _scores(fit, joints):
-    err = {k: float(np.linalg.norm(fit.joints[k] - v)) for k, v in joints.items() if k in fit.joints}
-    ang = {}
-    for sec, (a, b) in BONES.items():
-        if sec not in fit.sections:   # listed unfitted: no angle to compare
-            continue
-        d = joints[b] - joints[a]
-        ang[sec] = float(np.degrees(np.arccos(np.clip(d @ fit.sections[sec].axis / np.linalg.norm(d), -1, 1))))
-    return err, ang
 
 
 # -- analytic ------------------------------------------------------------------------------------
