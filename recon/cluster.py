@@ -497,20 +497,18 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         P, D = fit.sections[p], fit.sections[d]
         j = fit.joints.get(joint, D.start) if fit.joints else D.start
         along = (j - P.start) @ P.axis
+        at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
+        away = D.axis if at_start else -D.axis
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
             if not (side_planes and 0.0 <= along <= P.length):
                 continue  # a side joint beyond P's end (hips): no plane
             # beside P's column (shoulders): D's cross-section through the joint
-            at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
-            away = D.axis if at_start else -D.axis
             score = np.clip((points[sel] - j) @ away / (reach * D.width), -1.0, 1.0)
             # only along D's column: beyond its end (its cap, a capsule's dome) the plane says nothing
             h = (points[sel] - (D.start if at_start else D.end)) @ away
             out[sel] = np.where(h >= 0, score, 0.0)
             continue
         toward = P.axis if along > P.length / 2 else -P.axis
-        at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
-        away = D.axis if at_start else -D.axis
         normal = toward + away
         n = np.linalg.norm(normal)
         normal = normal / n if n > 1e-3 else away

@@ -386,6 +386,8 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
     ring = np.column_stack([np.cos(t), np.sin(t), np.full(len(t), 0.5 + 0.06 * body.stature / L)])
 
     lam = params.match_upright_prior
+    cos_up = np.cos(np.radians(params.match_upright_start))
+
     def score(c, R):
         return float(_column_score(scorer, c, R.T[None], L, rad, tmpl)[0]
                      - _column_score(scorer, c, R.T[None], L, rad, ring)[0]
@@ -419,13 +421,11 @@ def _match_torso(scorer: _Scorer, centroid: np.ndarray, body: StandardBody, para
         # and the best upright torso: on a coarse volume a torso tilted onto a hanging arm can
         # outscore it (its wide axis turned front-back, it covers torso and arm); the whole-body
         # match decides (the scanner's +z is up, and people are scanned mostly upright)
-        cos_up = np.cos(np.radians(params.match_upright_start))
         if all(abs(R[2, 2]) < cos_up for _, R in starts):   # (refined, it stays upright)
             up = [(s, c, R) for s, c, R in cands if abs(R[2, 2]) >= cos_up]
             if up:
                 starts.append(up[0][1:])
     out = []
-    cos_up = np.cos(np.radians(params.match_upright_start))
     for c0, R0 in starts:
         upright = abs(R0[2, 2]) >= cos_up
 
@@ -1279,7 +1279,7 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     first = None
     for pose in poses:
         try:
-            fit, unfitted, _ = _finish(work, pose, params)
+            fit, unfitted = _finish(work, pose, params)
             break
         except ReconError as e:
             first = first or e
@@ -1336,8 +1336,8 @@ def _finish(work, pose: _Pose, params: FitParams):
             p = fitted[prox]
             fitted[prox] = p.replace(end=p.start + pose.sections[prox].length * p.axis)
     # whether the posture was found at all: doubted sections were placed too, and count here
-    D = np.min([v.distance(work) for k, v in secs.items() if counts.get(k, 0) >= params.fit_min_points], axis=0)
-    explained = float(np.mean(D < params.fit_coverage_distance))
+    explained = _explained(work, {k: v for k, v in secs.items() if counts.get(k, 0) >= params.fit_min_points},
+                           params.fit_coverage_distance)
     if explained < params.fit_min_coverage:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
                          f"the fitted model explains only "
@@ -1347,7 +1347,7 @@ def _finish(work, pose: _Pose, params: FitParams):
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
-                   coarse=coarse, times={}), unfitted, explained
+                   coarse=coarse, times={}), unfitted
 
 
 def _arm_behind(d: np.ndarray, R: np.ndarray, back: np.ndarray) -> bool:
