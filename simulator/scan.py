@@ -216,15 +216,17 @@ class Scanner:
             o32 = ((o_img + start * axis + w).astype(np.float32)[:, None] + u.astype(np.float32)).reshape(-1, 3)
             d32 = axis.astype(np.float32)[None, :]
         face, t = self.caster.first_hit(o32, d32)
-        hit = np.flatnonzero(face >= 0)         # np.take: much faster than fancy indexing on (n, 3)
+        # np.take is much faster than fancy indexing on (n, 3); mode="clip" skips its bounds-checked
+        # (and, with out=, buffered) copy: every index here comes from Embree or flatnonzero
+        hit = np.flatnonzero(face >= 0)
         face, t = face[hit].astype(np.int64), t[hit].astype(np.float64)[:, None]
         if perspective:
-            d32 = np.take(d32, hit, axis=0)
+            d32 = np.take(d32, hit, axis=0, mode="clip")
             points = o32[0] + t * d32
             d32 /= np.sqrt(np.einsum("ij,ij->i", d32, d32))[:, None]
         else:
-            points = np.take(o32, hit, axis=0) + t * d32
-        normal = np.take(self.face_normals32, face, axis=0)
+            points = np.take(o32, hit, axis=0, mode="clip") + t * d32
+        normal = np.take(self.face_normals32, face, axis=0, mode="clip")
         cos_camera = -(np.einsum("ij,ij->i", normal, d32) if perspective else normal @ d32[0])
         flip = cos_camera < 0                   # the camera sees the back of the face (open meshes)
         np.negative(normal, out=normal, where=flip[:, None])
@@ -242,7 +244,8 @@ class Scanner:
         o_img, axis, up, right = head_frame(head, center)
         theta, roll = math.radians(config.laser_angle_deg), math.radians(head.laser_roll_deg)
         side = math.cos(roll) * up + math.sin(roll) * right
-        c_min = max(0.0, math.cos(math.radians(config.max_incidence_deg)))
+        # 90 degrees (the default) means no limit; cos(pi/2) is 6e-17, not 0, so test it exactly
+        c_min = 0.0 if config.max_incidence_deg >= 90 else math.cos(math.radians(config.max_incidence_deg))
         if config.projection == "perspective":
             # unnormalised rays from each point to the source: the source is at distance 1
             source = (o_img - config.camera_distance * axis + config.baseline * side).astype(np.float32)
@@ -257,7 +260,7 @@ class Scanner:
         if c_min > 0:
             candidate &= rays.cos_camera > c_min
         idx = np.flatnonzero(candidate)
-        starts = np.take(rays.starts, idx, axis=0)
+        starts = np.take(rays.starts, idx, axis=0, mode="clip")
         if config.projection == "perspective":
             blocked = self.caster.occluded(starts, source - starts, 1.0)
         else:
@@ -344,15 +347,15 @@ class Scanner:
         """Write head ``h``'s measured points (camera hits ``idx``) into ``out[rows]``, with imperfections."""
         m = len(idx)
         points = out.points[rows]
-        np.take(rays.points, idx, axis=0, out=points)
+        np.take(rays.points, idx, axis=0, out=points, mode="clip")
         face = out.gt_face[rows]
-        np.take(rays.face, idx, out=face)
-        np.take(self.face_section, face, out=out.gt_section[rows])
-        np.take(self.face_normals32, face, axis=0, out=out.gt_normal[rows])
+        np.take(rays.face, idx, out=face, mode="clip")
+        np.take(self.face_section, face, out=out.gt_section[rows], mode="clip")
+        np.take(self.face_normals32, face, axis=0, out=out.gt_normal[rows], mode="clip")
         out.head[rows] = h
         view = out.view_dir[rows]
         if len(rays.directions) > 1:
-            np.take(rays.directions, idx, axis=0, out=view)
+            np.take(rays.directions, idx, axis=0, out=view, mode="clip")
             np.negative(view, out=view)
         else:
             view[:] = -rays.directions
