@@ -1192,8 +1192,23 @@ def _swap_sides(name: str) -> str:
     return name
 
 
-def _joints(secs: dict, body: StandardBody, back: np.ndarray) -> dict:
-    """Joint positions from the sections; ``back`` (3,) is the subject's backward direction."""
+def _sole_depth(points, shin: SectionShape, body: StandardBody) -> float | None:
+    """How far along the shin's axis the sole lies from the knee: the 99.5th percentile of the
+    points within 0.1 m (scaled) of the axis beyond its middle, or None when fewer than 6.
+
+    The heel and the sole below the ankle are the leg's farthest points along the shin, whichever
+    way the foot points (a raised heel too); toes reach forward, not down the shin.
+    """
+    rel = points - shin.start
+    h = rel @ shin.axis
+    rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
+    near = (rho2 < (0.10 * body.scale) ** 2) & (h > 0.5 * shin.length) & (h < shin.length + 0.35 * body.scale)
+    return float(np.quantile(h[near], 0.995)) if near.sum() >= 6 else None
+
+
+def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> dict:
+    """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
+    ``points`` (n, 3), when given, place the ankles a foot height above the soles."""
     j = {}
     if "waist" in secs:
         j["pelvis"] = secs["waist"].start
@@ -1219,8 +1234,13 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray) -> dict:
                 # the fingertips are seen: the wrist lies a hand length before them
                 full = q.length + q.caps[1]
                 j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
-            else:  # soles are rarely seen: the ankle lies a standard shank length below the knee
+            else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
+                sole = _sole_depth(points, q, body) if points is not None and dist.startswith("lower_leg") else None
+                if sole is not None and 0.6 * seg < sole - body.length("foot_height") < 1.6 * seg:
+                    # the ankle lies a foot height above the sole (Winter 0.039 H; the rig's 0.043 H):
+                    # shank lengths vary between people more than foot heights do
+                    seg = sole - body.length("foot_height")
                 j[c] = q.start + seg * q.axis
     if "waist" in secs:   # the rig's hip joints lie behind and outside the thighs' tops
         left = _unit(_cross(back, secs["waist"].axis))
@@ -1343,8 +1363,8 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"the fitted model explains only "
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
-    joints = _joints(fitted, pose.body, back)
-    coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back))
+    joints = _joints(fitted, pose.body, back, work)
+    coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back, work))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
