@@ -62,6 +62,15 @@ _F = dict(
 #: The rig's spine joints lie behind the torso's axis (towards the back), as fractions of stature.
 SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.011)
 
+#: Where the chest section meets the waist section, as a fraction of the way from the pelvis joint
+#: to the chest joint: the body file format labels the spine02 bone and above as chest, and its
+#: head lies below the rig's chest joint (spine01), where the model's two torso columns are
+#: joined. 0.625 is the plane that best separates the waist and chest labels on two of the rig's
+#: bodies, standing and a_pose (0.625 on both, 0.8 % of torso vertices on the wrong side; 0.57 to
+#: 0.68 over the shipped library). The fit joins its columns at the chest joint, then splits the
+#: torso here for the sections it reports (`recon.estimate_posture`).
+TORSO_SPLIT = 0.625
+
 #: The rig's hip joints (femoral heads) lie behind and outside the top of the thigh's column, as
 #: fractions of stature: the mean offset from the fitted thigh start to the rig's hip joint on
 #: `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose (4.1 cm back,

@@ -91,7 +91,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import ReconError
-from .bodymodel import HIP_OFFSET, LIMBS, SPINE_BACK, StandardBody, kind_of, standard_body
+from .bodymodel import HIP_OFFSET, LIMBS, SPINE_BACK, TORSO_SPLIT, StandardBody, kind_of, standard_body
 from .cloud import check_points
 from .model import SECTIONS, BodyFit, SectionShape
 from .volume import Volume, voxel_size, voxelize
@@ -1364,6 +1364,7 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     joints = _joints(fitted, pose.body, back, work)
+    fitted = _split_torso(work, fitted)
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back, work))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
@@ -1394,6 +1395,28 @@ def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int 
         hi = np.minimum((h[col] / secs[n].length * n_h).astype(int), n_h - 1)
         out[n] = len(np.unique(ti * n_h + hi)) / (n_theta * n_h)
     return out
+
+
+def _split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
+    """The reported waist and chest sections: split where the body's labels change, not at the
+    chest joint where the fit joins the two columns.
+
+    The waist column is cut at ``split`` of its length (from the pelvis) and the chest column runs
+    from the cut to its top; the joints are not moved. Both sections then meet at the section
+    boundary of the body file format (`recon.bodymodel.TORSO_SPLIT`), which is what the clustering
+    separates: split at the chest joint, 5-17 % of a body's points (the lower ribs) were labelled
+    waist. The chest's radii are measured again over its new extent (`_robust_radii`: the lower
+    ribs are narrower than the shoulders, and a chest kept as wide as its top reaches, within
+    T_d, the elbows of hanging arms).
+    """
+    if "waist" not in secs or "chest" not in secs:
+        return secs
+    w, c = secs["waist"], secs["chest"]
+    cut = w.start + split * w.length * w.axis
+    chest = c.replace(start=cut)
+    radii = _robust_radii(points, chest)
+    chest = chest.replace(radii=radii, caps=np.array([min(chest.caps[0], radii.min()), chest.caps[1]]))
+    return {**secs, "waist": w.replace(end=cut), "chest": chest}
 
 
 def _check_plausible(secs: dict, body: StandardBody) -> None:
