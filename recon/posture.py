@@ -1405,17 +1405,19 @@ def _split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
     from the cut to its top; the joints are not moved. Both sections then meet at the section
     boundary of the body file format (`recon.bodymodel.TORSO_SPLIT`), which is what the clustering
     separates: split at the chest joint, 5-17 % of a body's points (the lower ribs) were labelled
-    waist. The chest's radii are measured again over its new extent (`_robust_radii`: the lower
-    ribs are narrower than the shoulders, and a chest kept as wide as its top reaches, within
-    T_d, the elbows of hanging arms).
+    waist. The chest's radii become the length-weighted mean of the two columns' radii over its new
+    extent (the model's radii are means along a section; the lower ribs, fitted by the waist
+    column, are narrower than the shoulders). Measured on 21 bodies against keeping the chest's
+    radii or measuring them again (`_robust_radii`, which the arms beside the chest inflate): the
+    same section accuracy (0.869-0.873), the least bridging (mean 1.27 % against 1.38 and 1.28 %).
     """
     if "waist" not in secs or "chest" not in secs:
         return secs
     w, c = secs["waist"], secs["chest"]
     cut = w.start + split * w.length * w.axis
-    chest = c.replace(start=cut)
-    radii = _robust_radii(points, chest)
-    chest = chest.replace(radii=radii, caps=np.array([min(chest.caps[0], radii.min()), chest.caps[1]]))
+    low = (1.0 - split) * w.length     # the part of the waist column that becomes chest
+    radii = (low * w.radii + c.length * c.radii) / (low + c.length)
+    chest = c.replace(start=cut, radii=radii, caps=np.array([min(c.caps[0], radii.min()), c.caps[1]]))
     return {**secs, "waist": w.replace(end=cut), "chest": chest}
 
 
