@@ -10,6 +10,7 @@ rigid misalignment of each head's points.
 
 from __future__ import annotations
 
+import functools
 import math
 import warnings
 from dataclasses import dataclass, field
@@ -219,7 +220,8 @@ class Scanner:
         # np.take is much faster than fancy indexing on (n, 3); mode="clip" skips its bounds-checked
         # (and, with out=, buffered) copy: every index here comes from Embree or flatnonzero
         hit = np.flatnonzero(face >= 0)
-        face, t = face[hit].astype(np.int64), t[hit].astype(np.float64)[:, None]
+        face = np.take(face, hit, mode="clip").astype(np.int64)
+        t = np.take(t, hit, mode="clip").astype(np.float64)[:, None]
         if perspective:
             d32 = np.take(d32, hit, axis=0, mode="clip")
             points = o32[0] + t * d32
@@ -398,6 +400,7 @@ def scan(body, config: ScannerConfig | None = None, *, seed: int | None = None) 
     return scanner.scan(config, seed=seed)
 
 
+@functools.lru_cache(maxsize=1)
 def _version() -> str:
     try:
         from importlib.metadata import version
