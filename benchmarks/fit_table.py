@@ -7,8 +7,8 @@ Usage::
 
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
-with it; ``k3``: k = 3), fits it with `recon.estimate_posture` and prints one row per run: median and
-largest joint error (metres, over the joints the fit gives), the worst limb section's angle to its
+with it; ``k3``: k = 3; any of them with ``_noiseMM`` appended: range noise of that sigma, mm),
+fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error (metres, over the joints the fit gives), the worst limb section's angle to its
 true bone (degrees, over the fitted limb sections), the sections listed unfitted, the outcome and
 the seconds the fit took. Outcomes:
 
@@ -72,12 +72,14 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     from recon import ReconError, estimate_posture
 
     k = 3 if condition.startswith("k3") else 1
+    noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pts = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k)).points
+        pts = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k,
+                                                     noise_sigma=noise)).points
     joints = body.joint_dict()
     if "rot" in condition:
-        R = rot_z(float(condition.split("rot")[1]))
+        R = rot_z(float(condition.split("rot")[1].split("_")[0]))
         pts = pts @ R.T
         joints = {n: R @ v for n, v in joints.items()}
     row = dict(body=body.name if hasattr(body, "name") else "?", condition=condition, points=len(pts))
@@ -112,7 +114,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=float, default=0.01, help="scan resolution, metres (default 0.01)")
     ap.add_argument("--bodies", default="", help="comma-separated library names (default: all shipped)")
     ap.add_argument("--conditions", default=",".join(CONDITIONS),
-                    help="comma-separated: k1, k3, k1_rotDEG, k3_rotDEG (default k1,k1_rot137,k3)")
+                    help="comma-separated: k1, k3, k1_rotDEG, k3_rotDEG, any of them + _noiseMM "
+                         "(default k1,k1_rot137,k3)")
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
     a = ap.parse_args(argv)
 
