@@ -8,9 +8,10 @@ Usage::
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
 with it; ``k3``: k = 3; any of them with ``_noiseMM`` appended: range noise of that sigma, mm),
-fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error (metres, over the joints the fit gives), the worst limb section's angle to its
-true bone (degrees, over the fitted limb sections), the sections listed unfitted, the outcome and
-the seconds the fit took. Outcomes:
+fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error
+(metres, over the joints the fit gives), the worst limb section's angle to its true bone (degrees,
+over the fitted limb sections), the sections listed unfitted, the outcome and the seconds the fit
+took. Outcomes:
 
 - ``pass``: the issue's targets (median joint error <= 4 cm, no joint > 10 cm, every limb axis within
   20 degrees of its bone) with every section fitted;
