@@ -71,6 +71,11 @@ SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.011)
 #: torso here for the sections it reports (`recon.estimate_posture`).
 TORSO_SPLIT = 0.625
 
+#: The body file's lower-leg labels start below the rig's knee joint, along the shank, by this
+#: fraction of stature: 3.9 cm (0.022 H) on standing and a_pose, 1.6 to 3.9 cm over the library's
+#: straight legs. The fit places the knee joint; its reported lower legs start this much lower.
+KNEE_SPLIT = 0.022
+
 #: Height of a section's cap where it meets another section at a joint, in minor radii: flat, so
 #: that it does not reach far into the neighbour (a hemisphere at the hip reached 9 cm into the
 #: waist). Free ends (the pelvis end of the waist, head top, fingertips, soles) keep their caps.

@@ -91,8 +91,8 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from . import ReconError
-from .bodymodel import (HIP_OFFSET, JOINT_CAP, LIMBS, SPINE_BACK, TORSO_SPLIT, StandardBody, kind_of,
-                        standard_body)
+from .bodymodel import (HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SPINE_BACK, TORSO_SPLIT, StandardBody,
+                        kind_of, standard_body)
 from .cloud import check_points
 from .model import SECTIONS, BodyFit, SectionShape
 from .volume import Volume, voxel_size, voxelize
@@ -1365,7 +1365,7 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     joints = _joints(fitted, pose.body, back, work)
-    fitted = _joint_caps(_split_torso(work, fitted))
+    fitted = _joint_caps(_split_knees(_split_torso(work, fitted), pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back, work))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
@@ -1420,6 +1420,19 @@ def _split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
     radii = (low * w.radii + c.length * c.radii) / (low + c.length)
     chest = c.replace(start=cut, radii=radii, caps=np.array([min(c.caps[0], radii.min()), c.caps[1]]))
     return {**secs, "waist": w.replace(end=cut), "chest": chest}
+
+
+def _split_knees(secs: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
+    """The reported lower legs start ``drop`` statures below the knee joint along the shank, where
+    the body file's labels change (`recon.bodymodel.KNEE_SPLIT`); the thighs and the joints are not
+    moved. Estimated-posture section accuracy, 21 bodies: 0.892 -> 0.898 (0.894 when the thigh is
+    also extended to meet it)."""
+    out = dict(secs)
+    for name in ("lower_leg_l", "lower_leg_r"):
+        if name in secs:
+            s = secs[name]
+            out[name] = s.replace(start=s.start + drop * body.stature * s.axis)
+    return out
 
 
 #: Section ends that are free (not a joint): (section, 0 for the start or 1 for the end).
