@@ -1210,6 +1210,7 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
     """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
     ``points`` (n, 3), when given, place the ankles a foot height above the soles."""
     j = {}
+    soled = set()   # lower legs whose ankle was placed from the detected sole
     if "waist" in secs:
         j["pelvis"] = secs["waist"].start
         j["chest"] = secs["waist"].end
@@ -1241,6 +1242,7 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
                     # the ankle lies a foot height above the sole (Winter 0.039 H; the rig's 0.043 H):
                     # shank lengths vary between people more than foot heights do
                     seg = sole - body.length("foot_height")
+                    soled.add(dist)
                 j[c] = q.start + seg * q.axis
     if "waist" in secs:   # the rig's hip joints lie behind and outside the thighs' tops
         left = _unit(_cross(back, secs["waist"].axis))
@@ -1248,7 +1250,55 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
             if f"hip_{side}" in j:
                 j[f"hip_{side}"] = j[f"hip_{side}"] + body.stature * (
                     HIP_OFFSET["back"] * back + sign * HIP_OFFSET["out"] * left)
+    for prox, dist, a, b, c in LIMBS:
+        if dist in soled and prox in secs and a in j and "waist" in secs:
+            k = _knee_between(j[a], j[c], secs[prox].axis, secs[dist].axis, back, left,
+                              body.length("thigh") / (body.length("thigh") + body.length("lower_leg")))
+            if k is not None:
+                j[b] = k
     return {k: np.asarray(v, dtype=float) for k, v in j.items()}
+
+
+def _knee_between(hip: np.ndarray, ankle: np.ndarray, d_thigh: np.ndarray, d_shin: np.ndarray,
+                  back: np.ndarray, left: np.ndarray, frac: float) -> np.ndarray | None:
+    """The knee (3,) from the hip and ankle joints (3,), the bend between the fitted thigh and shin
+    axes (unit (3,)) and the thigh's share ``frac`` of thigh + shank; None when the hip and ankle
+    coincide.
+
+    Thigh and shank (lengths t and s, t / (t + s) = ``frac``, the model's 0.235 / 0.485; the rig's
+    bodies 0.47-0.51) with the bend angle of the axes close the triangle hip-knee-ankle. The knee
+    bends about a hinge: the axes' own (their cross product, long when the bend is large: a seated
+    person's knees spread apart) plus the body's left-right axis ``left`` (unit (3,)) weighted
+    sin 20 degrees (it decides for a nearly straight leg, whose axes' bend is noise), and a knee
+    bends backwards only, so it lies in front (``-back``) of the hip-ankle line. The hip and the
+    ankle (a foot height above the detected sole) are the leg's best-placed joints; the knee is not
+    seen on a straight leg, and on a slightly bent one the meeting point of the two axes moves far
+    along them for a small error in either direction (a walker's rear leg, bent 25 degrees: 10 cm),
+    while the bend angle alone moves the knee little. Measured on the fits of the 21 shipped bodies
+    (k = 1, turned 137 degrees, k = 3): knee error mean 3.7 -> 2.3 cm, largest 12.7 -> 8.1 cm.
+    """
+    v = ankle - hip
+    D = float(np.linalg.norm(v))
+    if D < 1e-3:
+        return None
+    e = v / D
+    hinge = _cross(d_thigh, d_shin)
+    if hinge @ left < 0:
+        hinge = -hinge
+    hinge = hinge + np.sin(np.radians(20.0)) * left
+    hinge = hinge - e * (hinge @ e)
+    nh = float(np.linalg.norm(hinge))
+    if nh < 1e-6:
+        return None
+    fwd = _cross(e, hinge / nh)
+    if fwd @ back > 0:
+        fwd = -fwd
+    F = frac
+    cb = float(np.clip(d_thigh @ d_shin, -1.0, 1.0))
+    L = D / np.sqrt(F ** 2 + (1 - F) ** 2 + 2 * F * (1 - F) * cb)
+    t, s = F * L, (1 - F) * L
+    ca = float(np.clip((t * t + D * D - s * s) / (2 * t * D), -1.0, 1.0))
+    return hip + t * (ca * e + np.sqrt(1.0 - ca * ca) * fwd)
 
 
 # -- entry point --------------------------------------------------------------------------------

@@ -86,6 +86,28 @@ def test_params_from_strings():
         FitParams.from_strings(["voxel_max=big"])
 
 
+def test_knee_closes_the_leg_triangle():
+    """The knee from hip, ankle and the bend of the axes: exact on a bent leg, whichever way the
+    hinge turns, and on a straight leg at the thigh's share of hip to ankle."""
+    from recon.posture import _knee_between
+
+    back, left = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
+    hip = np.array([0.1, 0.0, 0.9])
+    for bend, spread in ((25.0, 0.0), (90.0, 0.0), (100.0, 20.0)):
+        # thigh forward-down by `bend` from the vertical, turned `spread` degrees outwards
+        b, s = np.radians(bend), np.radians(spread)
+        d1 = np.array([np.sin(b) * np.sin(s), -np.sin(b) * np.cos(s), -np.cos(b)])
+        d2 = np.array([0.0, 0.0, -1.0])
+        knee = hip + 0.40 * d1
+        ankle = knee + 0.45 * d2
+        got = _knee_between(hip, ankle, d1, d2, back, left, 0.40 / 0.85)
+        # a thigh spread outwards: the body's left-right axis pulls the hinge a little (2 cm at 20 deg)
+        assert np.linalg.norm(got - knee) < (0.025 if spread else 1e-9)
+    down = np.array([0.0, 0.0, -1.0])
+    straight = _knee_between(hip, hip + 0.85 * down, down, down, back, left, 0.4)
+    assert np.allclose(straight, hip - [0, 0, 0.34])
+
+
 # -- shipped postures ------------------------------------------------------------------------------
 def _library():
     poses = pytest.importorskip("poses")
@@ -200,9 +222,11 @@ def _scan_and_fit(name, k=1):
     return fit, body.joint_dict()
 
 
-@pytest.mark.parametrize("name", ["t_pose", "leaning", "child_standing"])
+@pytest.mark.parametrize("name", ["t_pose", "leaning", "child_standing", "walking"])
 def test_more_postures_meet_the_issue_targets(name):
-    """Arms out, a leaning trunk and a child at k = 1: the issue's targets, every section fitted."""
+    """Arms out, a leaning trunk, a child and a stride at k = 1: the issue's targets, every section
+    fitted (walking: the rear leg's knee, bent 25 degrees, was 10.6 cm off where its thigh and shin
+    axes met)."""
     fit, joints = _scan_and_fit(name)
     assert fit.unfitted == ()
     err, ang = _scores(fit, joints)
