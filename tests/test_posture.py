@@ -108,6 +108,27 @@ def test_knee_closes_the_leg_triangle():
     assert np.allclose(straight, hip - [0, 0, 0.34])
 
 
+def test_crown_anchor_keeps_a_level_thigh_on_its_line():
+    """Sliding the model along the torso axis to hang from the crown moves a level thigh (seated,
+    knee raised) only along itself: moved across itself it would leave its points."""
+    from recon.bodymodel import standard_body
+    from recon.posture import _anchor_on_head_top
+
+    x = [1.0, 0.0, 0.0]
+    secs = {
+        "waist": SectionShape("waist", [0, 0, 1.0], [0, 0, 1.36], [0.15, 0.11], x),
+        "head": SectionShape("head", [0, 0, 1.50], [0, 0, 1.70], [0.08, 0.09], x),
+        "thigh_l": SectionShape("thigh_l", [0.1, 0, 1.0], [0.1, -0.4, 1.0], [0.07, 0.07], x),
+        "lower_leg_l": SectionShape("lower_leg_l", [0.1, -0.4, 1.0], [0.1, -0.4, 0.55], [0.05, 0.05], x),
+    }
+    out = _anchor_on_head_top(secs, standard_body(1.75), FitParams())
+    move = out["waist"].start - secs["waist"].start
+    assert abs(move[2]) > 0.01                      # the model did slide
+    assert np.allclose(out["head"].start - secs["head"].start, move)
+    assert np.allclose(out["thigh_l"].start, secs["thigh_l"].start)    # level: stays on its line
+    assert np.allclose(out["lower_leg_l"].start - secs["lower_leg_l"].start, move)  # along itself
+
+
 # -- shipped postures ------------------------------------------------------------------------------
 def _library():
     poses = pytest.importorskip("poses")
