@@ -159,9 +159,12 @@ class FitParams:
     fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
     fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
     fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
-    fit_doubt_cover: float = 0.5           # 2.3(2): an arm section both this little covered and
+    fit_doubt_cover: float = 0.55          # 2.3(2): an arm section both this little covered and
     fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
-    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen)
+    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen; 0.5 while the
+                                           #   head anchor moved the arms off their points, 4 cm on most
+                                           #   scans: arm covers on the library rose 0.69 -> 0.77 mean
+                                           #   when they stayed, the doubt cover by the same ratio)
     fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
@@ -1038,7 +1041,7 @@ def _fine(points, pose: _Pose, params: FitParams):
                                    max_turn=np.radians(params.fit_max_turn) * (0.3 if name == "chest" else 1.0))
             new[name] = shp
             resid[name] = rms
-        secs = _rejoin(new, secs, pose, body)
+        secs = _rejoin(new, secs, pose, body, points)
     return secs, resid, counts
 
 
@@ -1051,8 +1054,9 @@ def _turn_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _rotvec(v / s * np.arctan2(s, float(a @ b)))
 
 
-def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
-    """Reconnect the independently adjusted sections at their joints."""
+def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody, points=None) -> dict:
+    """Reconnect the independently adjusted sections at their joints; ``points`` (n, 3), when
+    given, centre the neck between its sides (`_neck_shift`)."""
     out = {}
     w = new["waist"]
     # pelvis: keep it where the coarse match put it along the (adjusted) waist axis
@@ -1070,8 +1074,19 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     d = _unit(target - waist.end)
     if d @ waist.axis > np.cos(np.radians(25)):
         chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+    head_dir = new["head"].axis
+    shift = _neck_shift(points, chest, waist.axis, body) if points is not None else None
+    if shift is not None:
+        # the neck is left-right symmetric: its top end lies midway between the neck's sides
+        d = _unit(chest.end + shift - waist.end)
+        if d @ waist.axis > np.cos(np.radians(25)):
+            chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+            # the head keeps its top (the crown is measured) and hangs from the moved neck
+            hd = _unit(new["head"].end - chest.end)
+            if hd @ head_dir > np.cos(np.radians(30)):
+                head_dir = hd
     out["chest"] = chest
-    out["head"] = _keep_dir(new["head"], new["head"].axis, chest.end, new["head"].length)
+    out["head"] = _keep_dir(new["head"], head_dir, chest.end, new["head"].length)
     # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
     # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
     # the other), then each is taken onto its adjusted upper arm's axis
@@ -1086,7 +1101,7 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
         p, q = new[prox], new[dist]
         root = roots[prox]
         mid, sin = _closest_on_axes(p, q)
-        if mid is None or sin < np.sin(np.radians(25)):
+        if mid is None or sin < np.sin(np.radians(_ELBOW_STRAIGHT_DEG if root_name.startswith("shoulder") else 25)):
             # straight joint: keep the proximal length along the adjusted axis
             mid_len = old[prox].length
         else:
@@ -1097,17 +1112,86 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     return out
 
 
+def _neck_shift(points, chest: SectionShape, up: np.ndarray, body: StandardBody) -> np.ndarray | None:
+    """(3,) move across the body that centres the chest's top end (the neck) between the sides of
+    the neck, or None (fewer than 10 points there).
+
+    The neck is left-right symmetric in any posture: its sides, in a slab 0.02-0.06 H above the
+    chest's top end (above the trapezius, below the jaw and ears) within 0.08 H of it (clear of
+    arms raised beside the head), lie at the same distance either side of it; their midpoint is
+    taken between the 10th and 90th percentiles across the body (the sides are silhouettes, seen by
+    front and back sensors alike). The chest's own sideways tilt is poorly fixed by its points
+    (arms hang beside it): measured on `paper` scans of the library (k = 1, 3, turned), the neck's
+    left-right error went 2.1 -> 0.6 cm mean (6.2 -> 2.5 cm largest). ``up`` is the waist's axis,
+    across is the chest's wide axis (``frame_x``).
+    """
+    H = body.stature
+    lat = _unit(chest.frame_x - up * (chest.frame_x @ up))
+    fwd = _cross(up, lat)
+    rel = points - chest.end
+    h, x, y = rel @ up, rel @ lat, rel @ fwd
+    sel = (h > 0.02 * H) & (h < 0.06 * H) & (np.abs(x) < 0.08 * H) & (np.abs(y) < 0.08 * H)
+    if sel.sum() < 10:
+        return None
+    lo, hi = np.quantile(x[sel], [0.1, 0.9])
+    return 0.5 * (lo + hi) * lat
+
+
 def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:
-    """Slide the model along the torso axis so that the neck lies the standard head length below the
-    detected top of the head (the crown is the best-measured landmark along the spine)."""
+    """Slide the torso, head and legs along the torso axis so that the neck lies the standard head
+    length below the detected top of the head (the crown is the best-measured landmark along the
+    spine); the arms stay on their points and only their shoulders follow (`_move_shoulders`)."""
     h, w = secs["head"], secs["waist"]
-    if not h.closed[1] or body.stature < params.fit_anchor_min_stature:
-        return secs   # children's heads are relatively larger: the adult head length does not hold
-    top = h.end + h.caps[1] * h.axis
-    neck = top - body.section_length("head") * h.axis
-    shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
-    move = shift * w.axis
-    return {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()}
+    move = np.zeros(3)
+    # children's heads are relatively larger: the adult head length does not hold
+    if h.closed[1] and body.stature >= params.fit_anchor_min_stature:
+        top = h.end + h.caps[1] * h.axis
+        neck = top - body.section_length("head") * h.axis
+        shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
+        move = shift * w.axis
+    out = {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()
+           if k not in _ARM_SECTIONS}
+    return _move_shoulders(out, secs, body, move)
+
+
+#: The arm chains' sections.
+_ARM_SECTIONS = frozenset(n for prox, dist, root, *_ in LIMBS if root.startswith("shoulder") for n in (prox, dist))
+
+#: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder,
+#: not where the axes meet: two axes this close to parallel meet poorly (1 cm across them moves the
+#: meeting point 1 / tan(35 deg) = 1.4 cm along them; fitted straight arms of the library, bent 11
+#: degrees, came out bent up to 28 degrees; the bent arms are 45 degrees or more; chosen).
+_ELBOW_STRAIGHT_DEG = 35.0
+
+#: The shoulder joint rises with the arm raised above the horizontal (the clavicle elevates with
+#: the scapula, scapulohumeral rhythm): by this fraction of stature times the upper arm's cosine
+#: with the chest's axis. The rig's shoulder joints lie 0.025 H higher with the arms raised 157-161
+#: degrees from hanging (arms_raised, child_arms_raised) than hanging or held out level (t_pose).
+_SHOULDER_RISE = 0.027
+
+
+def _move_shoulders(out: dict, secs: dict, body: StandardBody, move: np.ndarray) -> dict:
+    """Add the arm sections of ``secs`` to ``out`` (the torso already moved by ``move`` (3,)) with
+    their shoulders following the torso and rising with a raised arm (`_SHOULDER_RISE`).
+
+    The arms were fitted on their own points: they stay there, and each shoulder moves along its
+    upper arm's axis only; a bent elbow stays where the two axes meet; a straight elbow keeps the
+    upper arm's length from the shoulder, and the forearm keeps its far end (the fingertips).
+    """
+    up = out["chest"].axis if "chest" in out else secs["waist"].axis
+    for prox, dist, root, *_ in LIMBS:
+        if not root.startswith("shoulder") or prox not in secs or dist not in secs:
+            continue
+        p, q = secs[prox], secs[dist]
+        rise = _SHOULDER_RISE * body.stature * max(0.0, float(p.axis @ up))
+        s = float((move + rise * up) @ p.axis)
+        if np.linalg.norm(_cross(p.axis, q.axis)) < np.sin(np.radians(_ELBOW_STRAIGHT_DEG)):
+            out[prox] = p.replace(start=p.start + s * p.axis, end=p.end + s * p.axis)
+            out[dist] = q.replace(start=out[prox].end) if s * (p.axis @ q.axis) < q.length - 0.05 else q
+        else:
+            out[prox] = p.replace(start=p.start + s * p.axis)
+            out[dist] = q
+    return out
 
 
 def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
