@@ -58,10 +58,16 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
    axis at the model's proportions (straight joints, and a joint whose distal section is
-   unfitted); the chest's top end is aimed at the fitted head (within 25 degrees of the waist's
-   axis; the arms beside it fix the chest's own direction poorly) and the shoulders turn with it;
-   the whole model slides along the torso axis so that the neck lies a standard head length below
-   the detected crown.
+   unfitted; an elbow bent less than 35 degrees counts as straight); the chest's top end is aimed
+   at the fitted head (within 25 degrees of the waist's axis; the arms beside it fix the chest's
+   own direction poorly), then centred between the sides of the neck (`_neck_shift`), and the
+   shoulders turn with it. The torso, head and legs slide along the torso axis (at most
+   `fit_max_shift`) so that the neck lies a standard head length below the detected crown, and
+   the neck and head follow the crown up to `fit_anchor_max_shift` further up; the arms stay on their
+   points and only the shoulders follow, along the upper arms, rising with an arm raised above
+   the horizontal (`_move_shoulders`). A wrist lies a hand length before the fingertips; a hand
+   resting on the thigh or hip, whose points went to those sections, is followed along the
+   forearm's axis (`_fingertip`).
 6. Front and back, hence left and right, come from the data, never from the scanner: feet point
    forward from the shins, knees bend backward, hips bend forward. The foot is the lowest part of
    the leg chain (against the scanner's +z), not the fitted shin's end, which in a sparse scan
@@ -169,6 +175,10 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
+    fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
+                                           # torso (fit_max_shift), the chest stretching, m. Measured on the library
+                                           # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
+                                           # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
     fit_seed: int = 0                      # random subsampling seed
 
@@ -1138,19 +1148,28 @@ def _neck_shift(points, chest: SectionShape, up: np.ndarray, body: StandardBody)
 
 
 def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:
-    """Slide the torso, head and legs along the torso axis so that the neck lies the standard head
-    length below the detected top of the head (the crown is the best-measured landmark along the
-    spine); the arms stay on their points and only their shoulders follow (`_move_shoulders`)."""
+    """Slide the torso, head and legs along the torso axis (at most `fit_max_shift`) so that the
+    neck lies the standard head length below the detected top of the head (the crown is the
+    best-measured landmark along the spine); the neck (the chest's top end) and the head follow the
+    crown up to `fit_anchor_max_shift` further up, the chest stretching; the arms stay on
+    their points and only their shoulders follow (`_move_shoulders`)."""
     h, w = secs["head"], secs["waist"]
-    move = np.zeros(3)
+    move, rest = np.zeros(3), np.zeros(3)
     # children's heads are relatively larger: the adult head length does not hold
     if h.closed[1] and body.stature >= params.fit_anchor_min_stature:
         top = h.end + h.caps[1] * h.axis
         neck = top - body.section_length("head") * h.axis
-        shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
+        want = float((neck - h.start) @ w.axis)
+        shift = float(np.clip(want, -params.fit_max_shift, params.fit_max_shift))
         move = shift * w.axis
+        # further only upwards: a crown found from points can fall short of the head's top (a sparse
+        # or half-seen head), never beyond it
+        rest = float(np.clip(want - shift, 0.0, params.fit_anchor_max_shift)) * w.axis
     out = {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()
            if k not in _ARM_SECTIONS}
+    if np.any(rest):
+        out["chest"] = out["chest"].replace(end=out["chest"].end + rest)
+        out["head"] = out["head"].replace(start=out["head"].start + rest, end=out["head"].end + rest)
     return _move_shoulders(out, secs, body, move)
 
 
@@ -1290,6 +1309,34 @@ def _sole_depth(points, shin: SectionShape, body: StandardBody) -> float | None:
     return float(np.quantile(h[near], 0.995)) if near.sum() >= 6 else None
 
 
+def _fingertip(points, q: SectionShape, body: StandardBody, step: float = 0.03) -> float:
+    """How far along the forearm's axis the fingertips lie from the elbow, metres: the forearm's own
+    detected end, carried on along the run of points of any section within the forearm's radius of
+    its axis that continues it without a gap of ``step``, when that end falls short of the model's
+    forearm and hand (at most a hand length further, and 1.1 times the model's length: beyond the
+    fingertips the axis may run on along the thigh the hand rests on).
+
+    A hand resting against the thigh or on the hip has its points given to the thigh or the waist
+    (their surfaces are nearer), so the forearm's own points end at the wrist and "tip minus a hand
+    length" put the wrist 7-11 cm short (arms_close, hands_on_hips); the hand is still there, along
+    the forearm's axis. A free hand's run ends at its fingertips.
+    """
+    full = q.length + q.caps[1]
+    model = body.length("forearm") + body.length("hand")
+    if full >= model:
+        return full
+    rel = points - q.start
+    h = rel @ q.axis
+    rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
+    near = (rho2 < q.radii.min() ** 2) & (h > full) & (h < min(full + body.length("hand"), 1.1 * model))
+    if not near.any():
+        return full
+    k = np.floor((h[near] - full) / step).astype(int)
+    gap = np.flatnonzero(np.bincount(k, minlength=k.max() + 2) == 0)[0]   # first empty step
+    run = k < gap
+    return float(max(full, h[near][run].max())) if run.any() else full
+
+
 def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> dict:
     """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
     ``points`` (n, 3), when given, place the ankles a foot height above the soles."""
@@ -1317,6 +1364,8 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
             if q.closed[1] and dist.startswith("forearm"):
                 # the fingertips are seen: the wrist lies a hand length before them
                 full = q.length + q.caps[1]
+                if points is not None:
+                    full = _fingertip(points, q, body)
                 j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
             else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
