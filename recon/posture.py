@@ -58,14 +58,19 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
    axis at the model's proportions (straight joints, and a joint whose distal section is
-   unfitted); a knee whose ankle was found from the sole closes the triangle hip-knee-ankle with
-   the model's thigh : shank ratio and the bend of the fitted axes (`_knee_between`: where two
-   nearly straight axes meet is ill-defined); the chest's top end is aimed at the fitted head
-   (within 25 degrees of the waist's axis; the arms beside it fix the chest's own direction
-   poorly) and the shoulders turn with it;
-   the whole model slides along the torso axis so that the neck lies a standard head length below
-   the detected crown (a leg section turned more than 45 degrees from that axis, a thigh held level,
-   slides along its own axis only: it stays on its points).
+   unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
+   from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
+   bend of the fitted axes (`_knee_between`: where two nearly straight axes meet is ill-defined);
+   the chest's top end is aimed at the fitted head (within 25 degrees of the waist's axis; the arms
+   beside it fix the chest's own direction poorly), then centred between the sides of the neck
+   (`_neck_shift`), and the shoulders turn with it. The torso, head and legs slide along the torso
+   axis (at most `fit_max_shift`) so that the neck lies a standard head length below the detected
+   crown (a leg section turned more than 45 degrees from that axis, a thigh held level, slides
+   along its own axis only: it stays on its points), and the neck and head follow the crown up to
+   `fit_anchor_max_shift` further up; the arms stay on their points and only the shoulders follow,
+   along the upper arms, rising with an arm raised above the horizontal (`_move_shoulders`). A
+   wrist lies a hand length before the fingertips; a hand resting on the thigh or hip, whose
+   points went to those sections, is followed along the forearm's axis (`_fingertip`).
 6. Front and back, hence left and right, come from the data, never from the scanner: feet point
    forward from the shins, knees bend backward, hips bend forward. The foot is the lowest part of
    the leg chain (against the scanner's +z), not the fitted shin's end, which in a sparse scan
@@ -166,9 +171,12 @@ class FitParams:
     fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
     fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
     fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
-    fit_doubt_cover: float = 0.5           # 2.3(2): an arm section both this little covered and
+    fit_doubt_cover: float = 0.55          # 2.3(2): an arm section both this little covered and
     fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
-    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen)
+    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen; 0.5 while the
+                                           #   head anchor moved the arms off their points, 4 cm on most
+                                           #   scans: arm covers on the library rose 0.69 -> 0.77 mean
+                                           #   when they stayed, the doubt cover by the same ratio)
     fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
     fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
                                            #   cells hold points at least this much and it fits them within this rms
@@ -179,6 +187,10 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
+    fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
+                                           # torso (fit_max_shift), the chest stretching, m. Measured on the library
+                                           # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
+                                           # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
     fit_seed: int = 0                      # random subsampling seed
 
@@ -1051,7 +1063,7 @@ def _fine(points, pose: _Pose, params: FitParams):
                                    max_turn=np.radians(params.fit_max_turn) * (0.3 if name == "chest" else 1.0))
             new[name] = shp
             resid[name] = rms
-        secs = _rejoin(new, secs, pose, body)
+        secs = _rejoin(new, secs, pose, body, points)
     return secs, resid, counts
 
 
@@ -1064,8 +1076,9 @@ def _turn_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return _rotvec(v / s * np.arctan2(s, float(a @ b)))
 
 
-def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
-    """Reconnect the independently adjusted sections at their joints."""
+def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody, points=None) -> dict:
+    """Reconnect the independently adjusted sections at their joints; ``points`` (n, 3), when
+    given, centre the neck between its sides (`_neck_shift`)."""
     out = {}
     w = new["waist"]
     # pelvis: keep it where the coarse match put it along the (adjusted) waist axis
@@ -1083,8 +1096,19 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     d = _unit(target - waist.end)
     if d @ waist.axis > np.cos(np.radians(25)):
         chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+    head_dir = new["head"].axis
+    shift = _neck_shift(points, chest, waist.axis, body) if points is not None else None
+    if shift is not None:
+        # the neck is left-right symmetric: its top end lies midway between the neck's sides
+        d = _unit(chest.end + shift - waist.end)
+        if d @ waist.axis > np.cos(np.radians(25)):
+            chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+            # the head keeps its top (the crown is measured) and hangs from the moved neck
+            hd = _unit(new["head"].end - chest.end)
+            if hd @ head_dir > np.cos(np.radians(30)):
+                head_dir = hd
     out["chest"] = chest
-    out["head"] = _keep_dir(new["head"], new["head"].axis, chest.end, new["head"].length)
+    out["head"] = _keep_dir(new["head"], head_dir, chest.end, new["head"].length)
     # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
     # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
     # the other), then each is taken onto its adjusted upper arm's axis
@@ -1099,7 +1123,7 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
         p, q = new[prox], new[dist]
         root = roots[prox]
         mid, sin = _closest_on_axes(p, q)
-        if mid is None or sin < np.sin(np.radians(25)):
+        if mid is None or sin < np.sin(np.radians(_ELBOW_STRAIGHT_DEG if root_name.startswith("shoulder") else 25)):
             # straight joint: keep the proximal length along the adjusted axis
             mid_len = old[prox].length
         else:
@@ -1110,18 +1134,52 @@ def _rejoin(new: dict, old: dict, pose: _Pose, body: StandardBody) -> dict:
     return out
 
 
+def _neck_shift(points, chest: SectionShape, up: np.ndarray, body: StandardBody) -> np.ndarray | None:
+    """(3,) move across the body that centres the chest's top end (the neck) between the sides of
+    the neck, or None (fewer than 10 points there).
+
+    The neck is left-right symmetric in any posture: its sides, in a slab 0.02-0.06 H above the
+    chest's top end (above the trapezius, below the jaw and ears) within 0.08 H of it (clear of
+    arms raised beside the head), lie at the same distance either side of it; their midpoint is
+    taken between the 10th and 90th percentiles across the body (the sides are silhouettes, seen by
+    front and back sensors alike). The chest's own sideways tilt is poorly fixed by its points
+    (arms hang beside it): measured on `paper` scans of the library (k = 1, 3, turned), the neck's
+    left-right error went 2.1 -> 0.6 cm mean (6.2 -> 2.5 cm largest). ``up`` is the waist's axis,
+    across is the chest's wide axis (``frame_x``).
+    """
+    H = body.stature
+    lat = _unit(chest.frame_x - up * (chest.frame_x @ up))
+    fwd = _cross(up, lat)
+    rel = points - chest.end
+    h, x, y = rel @ up, rel @ lat, rel @ fwd
+    sel = (h > 0.02 * H) & (h < 0.06 * H) & (np.abs(x) < 0.08 * H) & (np.abs(y) < 0.08 * H)
+    if sel.sum() < 10:
+        return None
+    lo, hi = np.quantile(x[sel], [0.1, 0.9])
+    return 0.5 * (lo + hi) * lat
+
+
 def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:
-    """Slide the model along the torso axis so that the neck lies the standard head length below the
-    detected top of the head (the crown is the best-measured landmark along the spine); a leg section
-    turned more than 45 degrees from the torso axis slides along its own axis only."""
+    """Slide the torso, head and legs along the torso axis (at most `fit_max_shift`) so that the
+    neck lies the standard head length below the detected top of the head (the crown is the
+    best-measured landmark along the spine); the neck (the chest's top end) and the head follow the
+    crown up to `fit_anchor_max_shift` further up, the chest stretching; the arms stay on
+    their points and only their shoulders follow (`_move_shoulders`); a leg section turned more than
+    45 degrees from the torso axis slides along its own axis only."""
     h, w = secs["head"], secs["waist"]
-    if not h.closed[1] or body.stature < params.fit_anchor_min_stature:
-        return secs   # children's heads are relatively larger: the adult head length does not hold
-    top = h.end + h.caps[1] * h.axis
-    neck = top - body.section_length("head") * h.axis
-    shift = float(np.clip((neck - h.start) @ w.axis, -params.fit_max_shift, params.fit_max_shift))
-    move = shift * w.axis
-    out = {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()}
+    move, rest = np.zeros(3), np.zeros(3)
+    # children's heads are relatively larger: the adult head length does not hold
+    if h.closed[1] and body.stature >= params.fit_anchor_min_stature:
+        top = h.end + h.caps[1] * h.axis
+        neck = top - body.section_length("head") * h.axis
+        want = float((neck - h.start) @ w.axis)
+        shift = float(np.clip(want, -params.fit_max_shift, params.fit_max_shift))
+        move = shift * w.axis
+        # further only upwards: a crown found from points can fall short of the head's top (a sparse
+        # or half-seen head), never beyond it
+        rest = float(np.clip(want - shift, 0.0, params.fit_anchor_max_shift)) * w.axis
+    out = {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()
+           if k not in _ARM_SECTIONS}
     for k in ("thigh_l", "thigh_r", "lower_leg_l", "lower_leg_r"):
         # the legs were placed on their points: one turned more than 45 degrees from the torso axis
         # slides along its own axis only (a thigh held level, seated or raised, moved across
@@ -1130,6 +1188,49 @@ def _anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> di
             v = secs[k]
             m = v.axis * (move @ v.axis)
             out[k] = v.replace(start=v.start + m, end=v.end + m)
+    if np.any(rest):
+        out["chest"] = out["chest"].replace(end=out["chest"].end + rest)
+        out["head"] = out["head"].replace(start=out["head"].start + rest, end=out["head"].end + rest)
+    return _move_shoulders(out, secs, body, move)
+
+
+#: The arm chains' sections.
+_ARM_SECTIONS = frozenset(n for prox, dist, root, *_ in LIMBS if root.startswith("shoulder") for n in (prox, dist))
+
+#: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder,
+#: not where the axes meet: two axes this close to parallel meet poorly (1 cm across them moves the
+#: meeting point 1 / tan(35 deg) = 1.4 cm along them; fitted straight arms of the library, bent 11
+#: degrees, came out bent up to 28 degrees; the bent arms are 45 degrees or more; chosen).
+_ELBOW_STRAIGHT_DEG = 35.0
+
+#: The shoulder joint rises with the arm raised above the horizontal (the clavicle elevates with
+#: the scapula, scapulohumeral rhythm): by this fraction of stature times the upper arm's cosine
+#: with the chest's axis. The rig's shoulder joints lie 0.025 H higher with the arms raised 157-161
+#: degrees from hanging (arms_raised, child_arms_raised) than hanging or held out level (t_pose).
+_SHOULDER_RISE = 0.027
+
+
+def _move_shoulders(out: dict, secs: dict, body: StandardBody, move: np.ndarray) -> dict:
+    """Add the arm sections of ``secs`` to ``out`` (the torso already moved by ``move`` (3,)) with
+    their shoulders following the torso and rising with a raised arm (`_SHOULDER_RISE`).
+
+    The arms were fitted on their own points: they stay there, and each shoulder moves along its
+    upper arm's axis only; a bent elbow stays where the two axes meet; a straight elbow keeps the
+    upper arm's length from the shoulder, and the forearm keeps its far end (the fingertips).
+    """
+    up = out["chest"].axis if "chest" in out else secs["waist"].axis
+    for prox, dist, root, *_ in LIMBS:
+        if not root.startswith("shoulder") or prox not in secs or dist not in secs:
+            continue
+        p, q = secs[prox], secs[dist]
+        rise = _SHOULDER_RISE * body.stature * max(0.0, float(p.axis @ up))
+        s = float((move + rise * up) @ p.axis)
+        if np.linalg.norm(_cross(p.axis, q.axis)) < np.sin(np.radians(_ELBOW_STRAIGHT_DEG)):
+            out[prox] = p.replace(start=p.start + s * p.axis, end=p.end + s * p.axis)
+            out[dist] = q.replace(start=out[prox].end) if s * (p.axis @ q.axis) < q.length - 0.05 else q
+        else:
+            out[prox] = p.replace(start=p.start + s * p.axis)
+            out[dist] = q
     return out
 
 
@@ -1229,6 +1330,34 @@ def _sole_depth(points, shin: SectionShape, body: StandardBody) -> float | None:
     return float(np.quantile(h[near], 0.995)) if near.sum() >= 6 else None
 
 
+def _fingertip(points, q: SectionShape, body: StandardBody, step: float = 0.03) -> float:
+    """How far along the forearm's axis the fingertips lie from the elbow, metres: the forearm's own
+    detected end, carried on along the run of points of any section within the forearm's radius of
+    its axis that continues it without a gap of ``step``, when that end falls short of the model's
+    forearm and hand (at most a hand length further, and 1.1 times the model's length: beyond the
+    fingertips the axis may run on along the thigh the hand rests on).
+
+    A hand resting against the thigh or on the hip has its points given to the thigh or the waist
+    (their surfaces are nearer), so the forearm's own points end at the wrist and "tip minus a hand
+    length" put the wrist 7-11 cm short (arms_close, hands_on_hips); the hand is still there, along
+    the forearm's axis. A free hand's run ends at its fingertips.
+    """
+    full = q.length + q.caps[1]
+    model = body.length("forearm") + body.length("hand")
+    if full >= model:
+        return full
+    rel = points - q.start
+    h = rel @ q.axis
+    rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
+    near = (rho2 < q.radii.min() ** 2) & (h > full) & (h < min(full + body.length("hand"), 1.1 * model))
+    if not near.any():
+        return full
+    k = np.floor((h[near] - full) / step).astype(int)
+    gap = np.flatnonzero(np.bincount(k, minlength=k.max() + 2) == 0)[0]   # first empty step
+    run = k < gap
+    return float(max(full, h[near][run].max())) if run.any() else full
+
+
 def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> dict:
     """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
     ``points`` (n, 3), when given, place the ankles a foot height above the soles."""
@@ -1257,6 +1386,8 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
             if q.closed[1] and dist.startswith("forearm"):
                 # the fingertips are seen: the wrist lies a hand length before them
                 full = q.length + q.caps[1]
+                if points is not None:
+                    full = _fingertip(points, q, body)
                 j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
             else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
