@@ -1539,6 +1539,7 @@ def _finish(work, pose: _Pose, params: FitParams):
     back = sign * pose.R[:, 1]
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
                      or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
+                     or (kind_of(n) == "thigh" and _thigh_up(secs[n].axis, pose.R))
                      or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
                      or (coarse_scores.get(n, 1.0) < params.match_min_section_score
                          and shell_scores.get(n, -1.0) < params.match_min_shell_score
@@ -1585,6 +1586,14 @@ def _arm_behind(d: np.ndarray, R: np.ndarray, back: np.ndarray) -> bool:
     behind the frontal plane: such an arm was fitted onto the shoulder of a misplaced torso."""
     up, bk, side = float(d @ R[:, 2]), float(d @ back), abs(float(d @ R[:, 0]))
     return up > 0 and bk > max(side, up)
+
+
+def _thigh_up(d: np.ndarray, R: np.ndarray) -> bool:
+    """Whether a thigh along ``d`` (3,) points up within 60 degrees of the torso's axis (``R``'s third
+    column): a hip flexed beyond 120 degrees, the end of its active range (the library's deepest
+    flexion, a squat, is 102). Such a thigh was fitted onto the torso or an arm: a seated body at
+    20 mm came out with a thigh up the chest (54 degrees from a tilted torso's axis), 46 cm off."""
+    return float(d @ R[:, 2]) > 0.5
 
 
 def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
