@@ -286,6 +286,59 @@ def test_shipped_postures_on_average(scored):
     assert np.mean([r["bridging"] for r in rows]) < 0.005
 
 
+# -- the shipped postures, the whole pipeline as users run it (posture estimated) ----------------
+@pytest.fixture(scope="module")
+def estimated():
+    """Per shipped posture: proposed and simple, posture estimated from the cloud (one fit shared)."""
+    from benchmarks import metrics as M
+    from poses import load_body
+    from recon import estimate_posture
+    from simulator.config import preset
+    from simulator.scan import scan
+
+    out = {}
+    for name in _shipped():
+        body = load_body(name)
+        s = scan(body, preset("paper"))
+        truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fit = estimate_posture(s.points)
+            row = {}
+            for method in ("simple", "proposed"):
+                rec = reconstruct(s.points, method, view_dir=s.view_dir, fit=fit)
+                tf = s.gt_face[rec.faces]
+                row[method] = {
+                    "accuracy": M.section_accuracy(rec.point_sections, s.gt_section),
+                    "spurious": M.spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"],
+                    "bridging": M.bridging(rec.vertices, rec.faces, tf, truth, truth.params)["bridging_area_fraction"],
+                }
+        out[name] = row
+    return out
+
+
+@pytest.mark.skipif(not _shipped(), reason="no shipped postures")
+def test_estimated_posture_on_the_library(estimated):
+    """Regression level of the whole pipeline on every shipped posture (measured at this commit:
+    truth among labels mean 0.935, 1/m-scored mean 0.923, min 0.827; bridging mean 0.96 %)."""
+    prop = [r["proposed"] for r in estimated.values()]
+    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.92
+    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.80
+    assert np.mean([r["bridging"] for r in prop]) < 0.013
+    for name, r in estimated.items():   # the paper's claim, posture by posture
+        assert r["proposed"]["spurious"] < r["simple"]["spurious"], name
+
+
+@pytest.mark.skipif(not _shipped(), reason="no shipped postures")
+@pytest.mark.xfail(strict=True, reason="issue 5's targets with the estimated posture are not reached: "
+                                       "truth among labels >= 95 % on 7/21 postures (min 0.839), "
+                                       "bridging < 0.5 % on 6/21 (max 3.48 %)")
+def test_estimated_posture_meets_the_issue_targets(estimated):
+    for name, r in estimated.items():
+        assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name
+        assert r["proposed"]["bridging"] < 0.005, name
+
+
 @pytest.mark.parametrize("name", _shipped()[:3])
 def test_shipped_posture_mesh_is_valid(name, scored):
     r = _score(name, scored)
