@@ -85,12 +85,18 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    points cover (`fit_leg_seen_cover`, `fit_leg_seen_rms`: a thigh raised level, seen from the
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
    shoulder (pointing up, and more backwards than sideways or upwards: not anatomy) was fitted onto
-   the shoulder of a misplaced torso and is listed. A fit whose sections (all placed ones) explain fewer than
+   the shoulder of a misplaced torso and is listed, and so is a thigh pointing up within 60 degrees
+   of the torso's axis (a hip flexed past its active range). A fit whose sections (all placed ones) explain fewer than
    `fit_min_coverage` of the points within `fit_coverage_distance`, or with more than
    `fit_max_unfitted` sections unfitted, failed: the fit is made again from the next torso
    candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
    when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
    silently as a fit.
+8. The joints are the rig's (the body file format's); the sections reported in the `BodyFit` meet
+   where the body file's section labels change, which is not always at a joint: the torso splits
+   into waist and chest at `recon.bodymodel.TORSO_SPLIT` of the way from the pelvis to the chest
+   joint, the lower legs start `KNEE_SPLIT` statures below the knees, and sections meeting at a
+   joint have flat caps (`JOINT_CAP`). The clustering separates the sections there.
 """
 
 from __future__ import annotations
