@@ -51,7 +51,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    The legs are measured from the matched hips, so a torso matched too high or too low along its
    axis makes them too long or too short; crown to sole (through each leg) does not depend on
    where the torso sits. When the two disagree by more than `match_size_disagree` (adult sizes),
-   the hips were misplaced and the size comes from crown to sole. Crown to sole is measured over
+   the hips were misplaced and the size comes from crown to sole, and the next match hangs the
+   torso from the crown (`match_resized_anchor_shift`). Crown to sole is measured over
    the coarse model: where a joint bends (a knee, the head on the trunk) the model's segment before
    it, not the points, sets where the next one hangs, so that segment's unseen part (its length x
    (1 - cos bend)) is taken out of the measured and the model lengths (`_size_ratios`).
@@ -160,6 +161,10 @@ class FitParams:
                                            # 2.0 m; on the library's other adult-size matches they agree within
                                            # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
                                            # chosen)
+    match_resized_anchor_shift: float = 0.0  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
+                                           # misplaced along its axis), the next match slides the torso to hang from the
+                                           # crown when it is off by more than this, m (0: always; the walker's resized
+                                           # match sat 7 cm low, under `match_min_anchor_shift`; chosen)
     match_alternatives: int = 2            # 2.3(1): other torso poses tried, best first, when the fit of the best
                                            # fails its checks (a sparse scan's coarse volume often ties an upright
                                            # torso with one tilted onto an arm; chosen)
@@ -581,8 +586,10 @@ def _robust_radii(points, s: SectionShape) -> np.ndarray:
 
 
 def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs,
-                anchor: bool = True) -> _Pose:
-    """Place all sections for a torso pose (R columns: left, back, up) and score the whole match."""
+                anchor: bool = True, min_shift: float | None = None) -> _Pose:
+    """Place all sections for a torso pose (R columns: left, back, up) and score the whole match;
+    the torso slides to hang from the crown when the crown is off by more than ``min_shift`` (m;
+    default `match_min_anchor_shift`)."""
     import copy
 
     scorer = copy.copy(scorer_base)
@@ -614,7 +621,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
     if anchor and body.stature >= params.fit_anchor_min_stature:
         # the volume pins the torso poorly along its axis: the crown does (adult head length)
         shift = _crown_shift(points, secs["head"])
-        if shift is not None and abs(shift) > params.match_min_anchor_shift:
+        if shift is not None and abs(shift) > (params.match_min_anchor_shift if min_shift is None else min_shift):
             move = float(np.clip(shift, -params.match_max_anchor_shift, params.match_max_anchor_shift))
             return _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),
                                R, body, params, dirs, anchor=False)
@@ -782,6 +789,7 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
     body = standard_body(stature or 1.75)
     dirs = fibonacci_sphere(params.match_directions)
     starts = None
+    hang = None
     pose = None
     alternatives = []
     rng = np.random.default_rng(params.fit_seed)
@@ -818,7 +826,7 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
                 RR = R @ np.diag([1.0, -1.0, -1.0]) if flip else R
-                p = _place_body(points, scorer, c, RR, body, params, dirs)
+                p = _place_body(points, scorer, c, RR, body, params, dirs, min_shift=hang)
                 p.score += sc * _torso_len(body)
                 p.explained = _explained(sample, p.sections, params.match_explain_distance)
                 placed.append(p)
@@ -852,6 +860,9 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
+        # sized from the crown because the legs, measured from the matched hips, disagreed: the torso
+        # was misplaced along its axis; the next match hangs it from the crown wherever it is
+        hang = params.match_resized_anchor_shift if use is crown and not params.match_size_from_crown else None
     # other torso poses, best first, for when the best one's fine fit fails its checks
     alts, seen = [], [pose]
     for p in sorted(alternatives, key=lambda p: -p.explained):
