@@ -48,9 +48,16 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    again, locally, at that size); then each leg chain's length (hip to
    the farthest point along its lower leg) is measured and, when the legs' median ratio to the
    standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
-   (`match_size_from_crown` = 1 measures crown to sole instead for adult-size bodies, which does
-   not depend on where the torso sits; off by default: on the shipped library it fixes some
-   k = 3 sizes but misplaces a seated and a squatting body.)
+   The legs are measured from the matched hips, so a torso matched too high or too low along its
+   axis makes them too long or too short; crown to sole (through each leg) does not depend on
+   where the torso sits. When the two disagree by more than `match_size_disagree` (adult sizes),
+   the hips were misplaced and the size comes from crown to sole, and the next match hangs the
+   torso from the crown (`match_resized_anchor_shift`). Crown to sole is measured over
+   the coarse model: where a joint bends (a knee, the head on the trunk) the model's segment before
+   it, not the points, sets where the next one hangs, so that segment's unseen part (its length x
+   (1 - cos bend)) is taken out of the measured and the model lengths (`_size_ratios`).
+   (`match_size_from_crown` = 1 always sizes adult bodies from crown to sole; off by default: on
+   the shipped library it fixes some k = 3 sizes but misplaces a seated and a squatting body.)
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
    adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
@@ -158,6 +165,17 @@ class FitParams:
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
     match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
     match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
+    match_size_disagree: float = 0.1       # 2.1: the legs' length (from the matched hips) and crown to sole (which does
+                                           # not depend on where the torso sits along its axis) differ by more than this
+                                           # ratio: the hips were misplaced, size from crown to sole (adult sizes; a
+                                           # walker 1.97 m tall, hips matched 11 cm high: legs 2.2 m, crown to sole
+                                           # 2.0 m; on the library's other adult-size matches they agree within
+                                           # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
+                                           # chosen)
+    match_resized_anchor_shift: float = 0.0  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
+                                           # misplaced along its axis), the next match slides the torso to hang from the
+                                           # crown when it is off by more than this, m (0: always; the walker's resized
+                                           # match sat 7 cm low, under `match_min_anchor_shift`; chosen)
     match_alternatives: int = 2            # 2.3(1): other torso poses tried, best first, when the fit of the best
                                            # fails its checks (a sparse scan's coarse volume often ties an upright
                                            # torso with one tilted onto an arm; chosen)
@@ -586,8 +604,10 @@ def _robust_radii(points, s: SectionShape) -> np.ndarray:
 
 
 def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, params, dirs,
-                anchor: bool = True) -> _Pose:
-    """Place all sections for a torso pose (R columns: left, back, up) and score the whole match."""
+                anchor: bool = True, min_shift: float | None = None) -> _Pose:
+    """Place all sections for a torso pose (R columns: left, back, up) and score the whole match;
+    the torso slides to hang from the crown when the crown is off by more than ``min_shift`` (m;
+    default `match_min_anchor_shift`)."""
     import copy
 
     scorer = copy.copy(scorer_base)
@@ -619,7 +639,7 @@ def _place_body(points, scorer_base: _Scorer, centre, R, body: StandardBody, par
     if anchor and body.stature >= params.fit_anchor_min_stature:
         # the volume pins the torso poorly along its axis: the crown does (adult head length)
         shift = _crown_shift(points, secs["head"])
-        if shift is not None and abs(shift) > params.match_min_anchor_shift:
+        if shift is not None and abs(shift) > (params.match_min_anchor_shift if min_shift is None else min_shift):
             move = float(np.clip(shift, -params.match_max_anchor_shift, params.match_max_anchor_shift))
             return _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),
                                R, body, params, dirs, anchor=False)
@@ -787,6 +807,7 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
     body = standard_body(stature or 1.75)
     dirs = fibonacci_sphere(params.match_directions)
     starts = None
+    hang = None
     pose = None
     alternatives = []
     rng = np.random.default_rng(params.fit_seed)
@@ -823,7 +844,7 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
                 RR = R @ np.diag([1.0, -1.0, -1.0]) if flip else R
-                p = _place_body(points, scorer, c, RR, body, params, dirs)
+                p = _place_body(points, scorer, c, RR, body, params, dirs, min_shift=hang)
                 p.score += sc * _torso_len(body)
                 p.explained = _explained(sample, p.sections, params.match_explain_distance)
                 placed.append(p)
@@ -845,9 +866,11 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
         # adult proportions: crown to sole; a child's large head and short legs: the legs
-        use = crown if params.match_size_from_crown and body.stature * np.median(crown or [0]) >= \
-            params.fit_anchor_min_stature else []
-        use = use or [v for k, v in ratios.items() if k.startswith("lower_leg")]
+        legs = [v for k, v in ratios.items() if k.startswith("lower_leg")]
+        adult = bool(crown) and body.stature * np.median(crown) >= params.fit_anchor_min_stature
+        use = crown if adult and (params.match_size_from_crown or (
+            legs and abs(np.median(legs) - np.median(crown)) > params.match_size_disagree)) else []
+        use = use or legs
         if not use or (len(use) < 2 and "body" not in ratios):
             use = [v for k, v in ratios.items() if k != "body"]
         s = float(np.median(use))
@@ -855,6 +878,9 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
+        # sized from the crown because the legs, measured from the matched hips, disagreed: the torso
+        # was misplaced along its axis; the next match hangs it from the crown wherever it is
+        hang = params.match_resized_anchor_shift if use is crown and not params.match_size_from_crown else None
     # other torso poses, best first, for when the best one's fine fit fails its checks
     alts, seen = [], [pose]
     for p in sorted(alternatives, key=lambda p: -p.explained):
@@ -867,8 +893,31 @@ def _coarse_match(points, scorer, params: FitParams) -> list:
 
 def _size_ratios(points, pose: _Pose) -> dict:
     """Measured / model lengths: per limb chain (root to free end), and ``body``: the list of crown
-    to sole lengths over both legs (hip to crown along the head, plus the leg), which do not depend
-    on where the coarse match put the torso along its axis."""
+    to sole ratios over both legs (hip to crown along the head, plus the leg), which do not depend
+    on where the coarse match put the torso along its axis.
+
+    Crown to sole is measured over the model's chain: the crown along the head's axis from the
+    model's neck, the sole along the shin's axis from the model's knee. On a straight chain the
+    model's own lengths cancel out; where the chain bends by an angle a, the segment before the
+    bend (length l: the thigh before the knee, the trunk before the head) places the next one, and
+    l (1 - cos a) of it is not measured (moving the knee by d along a thigh moves the sole along the
+    shin by d cos a). That part U is taken out of both the measured length T and the model's S:
+    ratio = (T - U) / (S - U) (a seated body, knees at 90 degrees: 1.67 -> 1.76 m from a 1.50 m
+    match, true 1.77 m). Points nearer a placed forearm than the head are not the crown (a hand
+    held over the head).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    pose : _Pose
+        The coarse match.
+
+    Returns
+    -------
+    ratios : dict
+        ``lower_leg_l`` ... ``forearm_r``: float, measured / model chain length; ``body``: list of
+        float, crown to sole / model stature, one per measured leg.
+    """
     body = pose.body
     ratios = {}
     for prox, dist, *_ in LIMBS:
@@ -880,13 +929,29 @@ def _size_ratios(points, pose: _Pose) -> dict:
     h = rel @ head.axis
     rho = np.linalg.norm(rel - np.outer(h, head.axis), axis=1)
     near = (rho < 1.5 * head.radii.max() + 0.02) & (h > 0) & (h < 2.0 * head.length)
+    hands = [pose.sections[k] for k in ("forearm_l", "forearm_r") if k in pose.sections]
+    if hands and near.any():
+        # a hand held over the head is not the crown: points nearer a forearm than the head
+        idx = np.flatnonzero(near)
+        d_hand = np.min([s.distance(points[idx]) for s in hands], axis=0)
+        near[idx[d_hand < head.distance(points[idx])]] = False
     if near.sum() >= 10:
         hips = pose.centre - 0.5 * _torso_len(body) * pose.R[:, 2] + pose.R @ np.array([0, 0, body.length("hip_z")])
         up = np.linalg.norm(head.start - hips) + np.quantile(h[near], 0.995)
         up_model = body.length("neck") + body.section_length("head") - body.length("hip_z")
-        legs = [ratios[d] * body.limb_lengths(d) for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
-        if legs:
-            ratios["body"] = [(up + e) / (up_model + body.limb_lengths("lower_leg_l")) for e in legs]
+        tor = head.start - hips
+        u_head = np.linalg.norm(tor) * (1.0 - max(0.0, float(head.axis @ _unit(tor))))
+        out = []
+        for prox, dist in (("thigh_l", "lower_leg_l"), ("thigh_r", "lower_leg_r")):
+            if dist not in ratios:
+                continue
+            p, q = pose.sections[prox], pose.sections[dist]
+            T = up + ratios[dist] * body.limb_lengths(dist)
+            S = up_model + body.limb_lengths(dist)
+            U = u_head + p.length * (1.0 - max(0.0, float(p.axis @ q.axis)))
+            out.append((T - U) / (S - U))
+        if out:
+            ratios["body"] = out
     return ratios
 
 
