@@ -2,12 +2,12 @@
 
 Usage::
 
-    python -m benchmarks.fit_table [--resolution 0.01] [--bodies a,b] [--conditions k1,k1_rot137,k3]
+    python -m benchmarks.fit_table [--resolution 0.01] [--bodies a,b] [--conditions k1,k1_rot137,k2,k3]
                                    [--param NAME=VALUE ...]
 
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
-with it; ``k3``: k = 3; any of them with ``_noiseMM`` appended: range noise of that sigma, mm),
+with it; ``k2``, ``k3``: k = 2, 3; any of them with ``_noiseMM`` appended: range noise of that sigma, mm),
 fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error
 (metres, over the joints the fit gives), the worst limb section's angle to its true bone (degrees,
 over the fitted limb sections), the sections listed unfitted, the outcome and the seconds the fit
@@ -37,7 +37,7 @@ from recon.bodymodel import LIMBS
 #: Limb sections and the ground-truth bone each follows.
 BONES = {sec: bone for prox, dist, a, b, c in LIMBS for sec, bone in ((prox, (a, b)), (dist, (b, c)))}
 
-CONDITIONS = ("k1", "k1_rot137", "k3")
+CONDITIONS = ("k1", "k1_rot137", "k2", "k3")
 
 
 def rot_z(deg: float) -> np.ndarray:
@@ -72,7 +72,7 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     import simulator
     from recon import ReconError, estimate_posture
 
-    k = 3 if condition.startswith("k3") else 1
+    k = int(condition.split("_")[0][1:])
     noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -115,8 +115,8 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=float, default=0.01, help="scan resolution, metres (default 0.01)")
     ap.add_argument("--bodies", default="", help="comma-separated library names (default: all shipped)")
     ap.add_argument("--conditions", default=",".join(CONDITIONS),
-                    help="comma-separated: k1, k3, k1_rotDEG, k3_rotDEG, any of them + _noiseMM "
-                         "(default k1,k1_rot137,k3)")
+                    help="comma-separated: k1, k2, k3, kK_rotDEG, any of them + _noiseMM "
+                         "(default k1,k1_rot137,k2,k3)")
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
     a = ap.parse_args(argv)
 

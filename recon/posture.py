@@ -1463,7 +1463,8 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
             else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
                 sole = _sole_depth(points, q, body) if points is not None and dist.startswith("lower_leg") else None
-                if sole is not None and 0.6 * seg < sole - body.length("foot_height") < 1.6 * seg:
+                lo, hi = SHANK_RANGE
+                if sole is not None and lo * seg < sole - body.length("foot_height") < hi * seg:
                     # the ankle lies a foot height above the sole (Winter 0.039 H; the rig's 0.043 H):
                     # shank lengths vary between people more than foot heights do
                     seg = sole - body.length("foot_height")
@@ -1642,6 +1643,7 @@ def _finish(work, pose: _Pose, params: FitParams):
                          f"the fitted model explains only "
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
+    _check_leg_length(work, fitted, pose.body)
     joints = _joints(fitted, pose.body, back, work)
     fitted = _joint_caps(_split_knees(_split_torso(work, fitted), joints, pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=_joints(coarse_secs, pose.body, back, work))
@@ -1750,6 +1752,26 @@ def _joint_caps(secs: dict, height: float = JOINT_CAP) -> dict:
     return out
 
 
+#: A shank (knee to a foot height above the detected sole) outside these multiples of the model's
+#: shank for the estimated stature: the body's size or posture was misjudged (the library's fits:
+#: all within; a walker whose torso came out 15 cm high, sized 1.59 m for 1.97 m: 1.8).
+SHANK_RANGE = (0.6, 1.6)
+
+
+def _check_leg_length(points, secs: dict, body: StandardBody) -> None:
+    """`ReconError` when a fitted lower leg's sole lies too far from its knee for the body's size
+    (`SHANK_RANGE`): the fit is made again from the next torso candidate, or refused."""
+    seg = body.length("lower_leg")
+    for name in ("lower_leg_l", "lower_leg_r"):
+        sole = _sole_depth(points, secs[name], body) if name in secs else None
+        lo, hi = SHANK_RANGE
+        if sole is not None and not lo * seg < sole - body.length("foot_height") < hi * seg:
+            raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
+                             f"the {name.replace('_', ' ')} would reach "
+                             f"{(sole - body.length('foot_height')) / seg:.1f} times the shank of a "
+                             f"{body.stature:.2f} m body (its size was misjudged)")
+
+
 def _check_plausible(secs: dict, body: StandardBody) -> None:
     """Reject fits whose torso is not body-shaped (a sphere, a box, a wall)."""
     w, c = secs["waist"], secs["chest"]
@@ -1757,3 +1779,10 @@ def _check_plausible(secs: dict, body: StandardBody) -> None:
         if s.radii.max() > 0.4 or s.radii.min() < 0.03:
             raise ReconError(f"the cloud does not look like a human body (its {s.name} would be "
                              f"{2 * s.radii.max():.2f} m wide)")
+    if w.radii[0] < w.radii[1]:
+        # a waist is wider than deep (ANSUR II: 0.31 x 0.22 m; the library's fits 1.3-1.7 x): deeper
+        # than wide, the fit took the body's front-back for its left-right (a walker's stride for
+        # legs spread apart)
+        raise ReconError(f"the cloud does not look like a human body, or its posture was not found: the "
+                         f"fitted waist would be deeper ({2 * w.radii[1]:.2f} m) than wide "
+                         f"({2 * w.radii[0]:.2f} m)")
