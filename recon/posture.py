@@ -1291,7 +1291,10 @@ def _move_shoulders(out: dict, secs: dict, body: StandardBody, move: np.ndarray)
     """
     up = out["chest"].axis if "chest" in out else secs["waist"].axis
     for prox, dist, root, *_ in LIMBS:
-        if not root.startswith("shoulder") or prox not in secs or dist not in secs:
+        if not root.startswith("shoulder"):
+            continue
+        if prox not in secs or dist not in secs:   # an incomplete chain stays where it is
+            out.update({n: secs[n] for n in (prox, dist) if n in secs})
             continue
         p, q = secs[prox], secs[dist]
         rise = _SHOULDER_RISE * body.stature * max(0.0, float(p.axis @ up))
@@ -1387,18 +1390,22 @@ def _swap_sides(name: str) -> str:
     return name
 
 
-def _sole_depth(points, shin: SectionShape, body: StandardBody) -> float | None:
-    """How far along the shin's axis the sole lies from the knee: the 99.5th percentile of the
-    points within 0.1 m (scaled) of the axis beyond its middle, or None when fewer than 6.
+def _shank_ratio(points, shin: SectionShape, body: StandardBody) -> float | None:
+    """The shank the sole shows (knee to a foot height above the sole) over the model's shank, or
+    None when fewer than 6 points show the sole.
 
-    The heel and the sole below the ankle are the leg's farthest points along the shin, whichever
-    way the foot points (a raised heel too); toes reach forward, not down the shin.
+    The sole lies at the 99.5th percentile, along the shin's axis from the knee, of the points within
+    0.1 m (scaled) of the axis beyond its middle: the heel and the sole below the ankle are the leg's
+    farthest points along the shin, whichever way the foot points (a raised heel too); toes reach
+    forward, not down the shin.
     """
     rel = points - shin.start
     h = rel @ shin.axis
     rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
     near = (rho2 < (0.10 * body.scale) ** 2) & (h > 0.5 * shin.length) & (h < shin.length + 0.35 * body.scale)
-    return float(np.quantile(h[near], 0.995)) if near.sum() >= 6 else None
+    if near.sum() < 6:
+        return None
+    return (float(np.quantile(h[near], 0.995)) - body.length("foot_height")) / body.length("lower_leg")
 
 
 def _fingertip(points, q: SectionShape, body: StandardBody, step: float = 0.03) -> float:
@@ -1462,12 +1469,11 @@ def _joints(secs: dict, body: StandardBody, back: np.ndarray, points=None) -> di
                 j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
             else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
                 seg = body.length("forearm" if dist.startswith("forearm") else "lower_leg")
-                sole = _sole_depth(points, q, body) if points is not None and dist.startswith("lower_leg") else None
-                lo, hi = SHANK_RANGE
-                if sole is not None and lo * seg < sole - body.length("foot_height") < hi * seg:
+                r = _shank_ratio(points, q, body) if points is not None and dist.startswith("lower_leg") else None
+                if r is not None and SHANK_RANGE[0] < r < SHANK_RANGE[1]:
                     # the ankle lies a foot height above the sole (Winter 0.039 H; the rig's 0.043 H):
                     # shank lengths vary between people more than foot heights do
-                    seg = sole - body.length("foot_height")
+                    seg *= r
                     soled.add(dist)
                 j[c] = q.start + seg * q.axis
     if "waist" in secs:   # the rig's hip joints lie behind and outside the thighs' tops
@@ -1724,8 +1730,9 @@ def _split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNE
         if kind_of(shin) != "lower_leg" or shin not in secs:
             continue
         s = secs[shin]
-        top = joints.get(knee, s.start) if thigh in secs else s.start
-        if thigh in secs and knee in joints:
+        meet = thigh in secs and knee in joints
+        top = joints[knee] if meet else s.start
+        if meet:
             out[thigh] = secs[thigh].replace(end=top)
         axis = _unit(s.end - top)
         out[shin] = s.replace(start=top + drop * body.stature * axis)
@@ -1733,8 +1740,7 @@ def _split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNE
 
 
 #: Section ends that are free (not a joint): (section, 0 for the start or 1 for the end).
-_FREE_ENDS = {("waist", 0), ("head", 1), ("forearm_l", 1), ("forearm_r", 1), ("lower_leg_l", 1),
-              ("lower_leg_r", 1)}
+_FREE_ENDS = {("waist", 0), ("head", 1)} | {(dist, 1) for _, dist, *_ in LIMBS}
 
 
 def _joint_caps(secs: dict, height: float = JOINT_CAP) -> dict:
@@ -1761,14 +1767,11 @@ SHANK_RANGE = (0.6, 1.6)
 def _check_leg_length(points, secs: dict, body: StandardBody) -> None:
     """`ReconError` when a fitted lower leg's sole lies too far from its knee for the body's size
     (`SHANK_RANGE`): the fit is made again from the next torso candidate, or refused."""
-    seg = body.length("lower_leg")
     for name in ("lower_leg_l", "lower_leg_r"):
-        sole = _sole_depth(points, secs[name], body) if name in secs else None
-        lo, hi = SHANK_RANGE
-        if sole is not None and not lo * seg < sole - body.length("foot_height") < hi * seg:
+        r = _shank_ratio(points, secs[name], body) if name in secs else None
+        if r is not None and not SHANK_RANGE[0] < r < SHANK_RANGE[1]:
             raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
-                             f"the {name.replace('_', ' ')} would reach "
-                             f"{(sole - body.length('foot_height')) / seg:.1f} times the shank of a "
+                             f"the {name.replace('_', ' ')} would reach {r:.1f} times the shank of a "
                              f"{body.stature:.2f} m body (its size was misjudged)")
 
 

@@ -221,27 +221,34 @@ def _score(name, cache):
     fit = fit_from_body(body)
     truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))
     out = {"scan": s, "body": body}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        for key, method, over in (("simple", "simple", {}), ("proposed", "proposed", {}),
-                                  ("limited", "proposed", {"max_edge_factor": 4})):
-            rec = reconstruct(s.points, method, ReconParams.from_overrides(over), view_dir=s.view_dir, fit=fit)
-            tf = s.gt_face[rec.faces]
-            br = M.bridging(rec.vertices, rec.faces, tf, truth, truth.params)
-            sec = truth.face_section[tf]
-            pair = np.zeros(len(rec.faces), bool)
-            for a, b in ARMPIT_CROTCH:
-                pair |= (sec == SECTIONS.index(a)).any(axis=1) & (sec == SECTIONS.index(b)).any(axis=1)
-            _, area = M.face_normals(rec.vertices, rec.faces)
-            out[key] = {
-                "rec": rec,
-                "accuracy": M.section_accuracy(rec.point_sections, s.gt_section),
-                "spurious": M.spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"],
-                "bridging": br["bridging_area_fraction"],
-                "armpit_crotch_bridging": float(area[br["_bridging"] & pair].sum() / area.sum()),
-            }
+    for key, method, over in (("simple", "simple", {}), ("proposed", "proposed", {}),
+                              ("limited", "proposed", {"max_edge_factor": 4})):
+        out[key] = _reconstruct_and_score(s, truth, fit, method, over)
     cache[name] = out
     return out
+
+
+def _reconstruct_and_score(s, truth, fit, method, over=None):
+    """Reconstruct scan ``s`` with ``fit`` and score it against ``truth`` (a dict)."""
+    from benchmarks import metrics as M
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(s.points, method, ReconParams.from_overrides(over or {}), view_dir=s.view_dir, fit=fit)
+    tf = s.gt_face[rec.faces]
+    br = M.bridging(rec.vertices, rec.faces, tf, truth, truth.params)
+    sec = truth.face_section[tf]
+    pair = np.zeros(len(rec.faces), bool)
+    for a, b in ARMPIT_CROTCH:
+        pair |= (sec == SECTIONS.index(a)).any(axis=1) & (sec == SECTIONS.index(b)).any(axis=1)
+    _, area = M.face_normals(rec.vertices, rec.faces)
+    return {
+        "rec": rec,
+        "accuracy": M.section_accuracy(rec.point_sections, s.gt_section),
+        "spurious": M.spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"],
+        "bridging": br["bridging_area_fraction"],
+        "armpit_crotch_bridging": float(area[br["_bridging"] & pair].sum() / area.sum()),
+    }
 
 
 #: Known failures, kept visible: (posture, reason).
@@ -304,16 +311,7 @@ def estimated():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fit = estimate_posture(s.points)
-            row = {}
-            for method in ("simple", "proposed"):
-                rec = reconstruct(s.points, method, view_dir=s.view_dir, fit=fit)
-                tf = s.gt_face[rec.faces]
-                row[method] = {
-                    "accuracy": M.section_accuracy(rec.point_sections, s.gt_section),
-                    "spurious": M.spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"],
-                    "bridging": M.bridging(rec.vertices, rec.faces, tf, truth, truth.params)["bridging_area_fraction"],
-                }
-        out[name] = row
+        out[name] = {m: _reconstruct_and_score(s, truth, fit, m) for m in ("simple", "proposed")}
     return out
 
 
