@@ -234,25 +234,126 @@ def _check(ok, name, value, what):
         raise ReconError(f"parameter {name}={value!r}: must be {what}")
 
 
-def _fit_params_class():
-    """The posture estimation's FitParams, or None while `recon.posture` is not there."""
-    try:
-        from .posture import FitParams
-    except ImportError:
-        return None
-    return FitParams
+@dataclass(frozen=True)
+class FitParams:
+    """Parameters of posture estimation; paper values as defaults, paper section in each comment."""
 
+    voxel_min: float = 0.010               # 2.2: lower limit of the voxel edge, m (value not given; chosen)
+    voxel_max: float = 0.040               # 2.2, 4.2: upper limit of the voxel edge, 40 mm
+    voxel_density_k: int = 6               # 2.2: density = distance to the k-th nearest neighbour (chosen)
+    voxel_density_quantile: float = 0.95   # 2.2: "the sparsest part": this quantile of it (chosen)
+    voxel_spacing_factor: float = 1.0      # 2.2: voxel edge / sparsest spacing (chosen)
+    voxel_reach: float = 0.3               # 2.2: inside test: enclosing contours within this, m (chosen)
+    contour_weight: float = 2.0            # 2.3(1), 4.2: weight n of contour voxels, n = 2
+    match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
+    match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
+    match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
+    match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
+    match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
+                                           # each also with its roll from the legs (chosen)
+    match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
+    match_min_shell_score: float = 0.3     # 2.3(2): ... unless placed on its seen surface, by a shell score at
+                                           # least this (a limb seen from one side only; chosen)
+    match_shell_voxel: float = 0.025       # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
+                                           # scans (15 mm voxels). Measured: at 0.035 (10 mm scans, 25-30 mm voxels)
+                                           # squat k=3 went 8 -> 17 cm; on 40 mm voxels (20 mm scans) a rescued arm
+                                           # let a misplaced child's fit through (chosen)
+    match_thigh_max_rise: float = 0.2      # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
+                                           # must flex front or back more than it rises (anatomy; chosen)
+    match_upright_start: float = 5.0       # 2.3(1): the best torso within this of +z (degrees) is always among
+                                           # those matched whole, and stays so when refined (chosen: 5 measured
+                                           # better than 12 on heavy_a_pose, standing at 10 and 20 mm)
+    match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
+    match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
+    match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
+    match_max_bend: float = 150.0          # 2.3(2): largest knee bend searched, degrees (chosen)
+    match_max_elbow_bend: float = 140.0    # 2.3(2): largest elbow bend searched, degrees (anatomy: about 145;
+                                           # a forearm folded back down a raised arm was matched at 150; chosen)
+    match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen; 3
+                                           # measured worse on child_standing, t_pose and seated)
+    match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
+    match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
+    match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
+    match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
+    match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
+    match_size_disagree: float = 0.1       # 2.1: the legs' length (from the matched hips) and crown to sole (which does
+                                           # not depend on where the torso sits along its axis) differ by more than this
+                                           # ratio: the hips were misplaced, size from crown to sole (adult sizes; a
+                                           # walker 1.97 m tall, hips matched 11 cm high: legs 2.2 m, crown to sole
+                                           # 2.0 m; on the library's other adult-size matches they agree within
+                                           # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
+                                           # chosen)
+    match_resized_anchor_shift: float = 0.0  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
+                                           # misplaced along its axis), the next match slides the torso to hang from the
+                                           # crown when it is off by more than this, m (0: always; the walker's resized
+                                           # match sat 7 cm low, under `match_min_anchor_shift`; chosen)
+    match_alternatives: int = 2            # 2.3(1): other torso poses tried, best first, when the fit of the best
+                                           # fails its checks (a sparse scan's coarse volume often ties an upright
+                                           # torso with one tilted onto an arm; chosen)
+    match_explain_distance: float = 0.03   # 2.3(1)-(2): of the whole-body matches of the torso candidates, the one
+                                           # explaining most points within this (m) wins: on a coarse volume the
+                                           # volume score ties right and wrong torsos, the points do not (chosen)
+    match_explain_points: int = 4000       # 2.3(1): points sampled (fit_seed) for that count (chosen)
+    match_alt_min_turn: float = 10.0       # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
+    fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
+    fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
+    fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
+    fit_section_points: int = 500          # 2.3(2): points per section per round, subsampled (chosen)
+    fit_max_shift: float = 0.04            # 2.3(2): largest axis move per round, m (chosen)
+    fit_max_turn: float = 12.0             # 2.3(2): largest axis turn per round, degrees (chosen)
+    fit_max_points: int = 30000            # 2.3(2): points used by the fine fit, subsampled (chosen)
+    fit_loss: str = "soft_l1"              # 2.3(2): least-squares loss (paper: squares; robust chosen)
+    fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
+    fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
+    fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
+    fit_doubt_cover: float = 0.55          # 2.3(2): an arm section both this little covered and
+    fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
+    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen; 0.5 while the
+                                           #   head anchor moved the arms off their points, 4 cm on most
+                                           #   scans: arm covers on the library rose 0.69 -> 0.77 mean
+                                           #   when they stayed, the doubt cover by the same ratio)
+    fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
+    fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
+                                           #   cells hold points at least this much and it fits them within this rms
+                                           #   (m): the points show the limb the volume missed. Measured: the raised
+                                           #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched
+                                           #   into a gap 0.35-0.40 / 14-17 mm (chosen)
+    fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
+                                           # found (on the library, fits with 5 or more were wrong; chosen)
+    fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
+    fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
+    fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
+                                           # torso (fit_max_shift), the chest stretching, m. Measured on the library
+                                           # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
+                                           # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
+    fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
+    fit_seed: int = 0                      # random subsampling seed
 
-def _default_fit():
-    cls = _fit_params_class()
-    return cls() if cls is not None else None
+    @classmethod
+    def from_strings(cls, pairs) -> "FitParams":
+        """Build from ``["name=value", ...]`` (the CLI's ``--param``); raise `ReconError` on a bad one."""
+        types = {f.name: f.type for f in fields(cls)}
+        kw = {}
+        for pair in pairs or ():
+            name, sep, value = pair.partition("=")
+            name = name.strip()
+            if not sep or name not in types:
+                raise ReconError(f"--param {pair!r}: expected name=value with name one of "
+                                 f"{', '.join(types)}")
+            conv = {"float": float, "int": int, "str": str}[types[name]]
+            try:
+                kw[name] = conv(value)
+            except ValueError:
+                raise ReconError(f"--param {pair!r}: {value!r} is not a {types[name]}") from None
+        return cls(**kw)
 
 
 @dataclass(frozen=True)
 class ReconParams:
     """All parameters of the reconstruction: ``fit`` (posture estimation), ``cluster``, ``surface``."""
 
-    fit: object = field(default_factory=_default_fit)
+    fit: FitParams = field(default_factory=FitParams)
     cluster: ClusterParams = field(default_factory=ClusterParams)
     surface: SurfaceParams = field(default_factory=SurfaceParams)
 

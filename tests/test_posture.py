@@ -89,7 +89,7 @@ def test_params_from_strings():
 def test_knee_closes_the_leg_triangle():
     """The knee from hip, ankle and the bend of the axes: exact on a bent leg, whichever way the
     hinge turns, and on a straight leg at the thigh's share of hip to ankle."""
-    from recon.posture import _knee_between
+    from recon.joints import knee_between
 
     back, left = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
     hip = np.array([0.1, 0.0, 0.9])
@@ -100,11 +100,11 @@ def test_knee_closes_the_leg_triangle():
         d2 = np.array([0.0, 0.0, -1.0])
         knee = hip + 0.40 * d1
         ankle = knee + 0.45 * d2
-        got = _knee_between(hip, ankle, d1, d2, back, left, 0.40 / 0.85)
+        got = knee_between(hip, ankle, d1, d2, back, left, 0.40 / 0.85)
         # a thigh spread outwards: the body's left-right axis pulls the hinge a little (2 cm at 20 deg)
         assert np.linalg.norm(got - knee) < (0.025 if spread else 1e-9)
     down = np.array([0.0, 0.0, -1.0])
-    straight = _knee_between(hip, hip + 0.85 * down, down, down, back, left, 0.4)
+    straight = knee_between(hip, hip + 0.85 * down, down, down, back, left, 0.4)
     assert np.allclose(straight, hip - [0, 0, 0.34])
 
 
@@ -112,7 +112,7 @@ def test_crown_anchor_keeps_a_level_thigh_on_its_line():
     """Sliding the model along the torso axis to hang from the crown moves a level thigh (seated,
     knee raised) only along itself: moved across itself it would leave its points."""
     from recon.bodymodel import standard_body
-    from recon.posture import _anchor_on_head_top
+    from recon.adjust import anchor_on_head_top
 
     x = [1.0, 0.0, 0.0]
     secs = {
@@ -121,7 +121,7 @@ def test_crown_anchor_keeps_a_level_thigh_on_its_line():
         "thigh_l": SectionShape("thigh_l", [0.1, 0, 1.0], [0.1, -0.4, 1.0], [0.07, 0.07], x),
         "lower_leg_l": SectionShape("lower_leg_l", [0.1, -0.4, 1.0], [0.1, -0.4, 0.55], [0.05, 0.05], x),
     }
-    out = _anchor_on_head_top(secs, standard_body(1.75), FitParams())
+    out = anchor_on_head_top(secs, standard_body(1.75), FitParams())
     move = out["waist"].start - secs["waist"].start
     assert abs(move[2]) > 0.01                      # the model did slide
     assert np.allclose(out["head"].start - secs["head"].start, move)
@@ -427,15 +427,15 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
     1.75 m body, standing or seated (thighs level, knees bent 90 degrees): on a bent knee the
     model's thigh, not the points, sets where the shin hangs, so its length is not measured and is
     taken out of the ratio (uncorrected, a seated 1.75 m body measured 1.67 m from a 1.50 m match)."""
-    from recon.posture import _Pose, _size_ratios, _torso_len
+    from recon.match import Pose, size_ratios, torso_len
 
     d = np.array(thigh)
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), d)
     pts = np.concatenate([truth[k].surface_points(24, 40) for k in ("head", "lower_leg_l", "lower_leg_r")])
     # the small model hangs from the same pelvis height: its crown and shins fall short of the points
     body, secs = _seated_chain(1.50, np.array([0.0, 0.0, 1.0]), d)
-    pose = _Pose(centre=np.array([0.0, 0.0, 1.0 + 0.5 * _torso_len(body)]), R=np.eye(3), body=body, sections=secs)
-    r = _size_ratios(pts, pose)
+    pose = Pose(centre=np.array([0.0, 0.0, 1.0 + 0.5 * torso_len(body)]), R=np.eye(3), body=body, sections=secs)
+    r = size_ratios(pts, pose)
     assert len(r["body"]) == 2
     assert np.allclose(np.array(r["body"]) * 1.50, 1.75, atol=0.03)
 
@@ -443,7 +443,7 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
 def test_a_hand_over_the_head_is_not_the_crown():
     """A forearm raised over the head (its hand in line with the head's axis) does not lengthen the
     crown to sole measure: points nearer a placed forearm than the head are not the crown."""
-    from recon.posture import _Pose, _size_ratios, _torso_len
+    from recon.match import Pose, size_ratios, torso_len
 
     down = np.array([0.0, 0.0, -1.0])
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), down)
@@ -453,8 +453,8 @@ def test_a_hand_over_the_head_is_not_the_crown():
                          + [hand.surface_points(24, 40)])
     body, secs = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), down)
     secs["forearm_l"] = hand
-    pose = _Pose(centre=np.array([0.0, 0.0, 1.0 + 0.5 * _torso_len(body)]), R=np.eye(3), body=body, sections=secs)
-    assert np.allclose(np.array(_size_ratios(pts, pose)["body"]) * 1.75, 1.75, atol=0.03)
+    pose = Pose(centre=np.array([0.0, 0.0, 1.0 + 0.5 * torso_len(body)]), R=np.eye(3), body=body, sections=secs)
+    assert np.allclose(np.array(size_ratios(pts, pose)["body"]) * 1.75, 1.75, atol=0.03)
 
 
 def test_a_torso_deeper_than_wide_is_not_a_fit():

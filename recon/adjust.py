@@ -1,0 +1,363 @@
+"""Fine adjustment on the points (paper 2.3(2), step 5 of `recon.posture`).
+
+`fit_section` fits one section (axis, radii, free end) by least squares on the point-to-surface
+distances; `fine_adjust` does it for every section of a coarse pose and rejoins them at their
+joints; `anchor_on_head_top` slides the torso so that the head hangs from the detected crown.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .bodymodel import LIMBS, StandardBody
+from .geometry import cross, perp, turn_between, unit
+from .match import Pose
+from .model import SectionShape
+from .params import FitParams
+
+
+def _assign(points, sections: dict, near: float):
+    """Index of the nearest section surface per point (-1: none within ``near``), and distances."""
+    names = list(sections)
+    D = np.stack([sections[n].distance(points) for n in names], axis=1)
+    k = np.argmin(D, axis=1)
+    d = D[np.arange(len(points)), k]
+    k[d > near] = -1
+    return names, k
+
+
+def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1",
+                iterations: int = 3, end_threshold: float = 0.6, free_end: bool = True,
+                fit_radii: bool = True, max_shift: float = np.inf,
+                max_turn: float = np.inf) -> tuple[SectionShape, float]:
+    """Fit one section's axis, radii and free end to points on its surface (paper 2.3(2)).
+
+    Least squares on the point-to-surface distances over the axis position (2 offsets across the
+    axis), direction (2 angles) and, for an elliptic column, roll; then radius = mean distance of the
+    column's points from the axis (per principal direction for an elliptic column); repeated
+    ``iterations`` times. When ``free_end``, the end cap is placed at the farthest point nearer the
+    axis than ``end_threshold`` times the radius; with no such point the end is open and the length
+    is kept.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        Points of this section only.
+    shape : SectionShape
+        Starting shape (its ``start`` stays the reference point along the axis).
+    loss : str
+        `scipy.optimize.least_squares` loss.
+    max_shift, max_turn : float
+        Bounds on each iteration's move of the axis across itself (metres) and turn (radians).
+
+    Returns
+    -------
+    shape : SectionShape
+    rms : float
+        RMS distance of the points to the fitted surface, metres.
+    """
+    from scipy.optimize import least_squares
+
+    points = np.asarray(points, dtype=np.float64)
+    cur = shape
+    elliptic = not cur.is_cylinder
+    scale = max(0.005, 0.1 * float(cur.radii.mean()))
+    for _ in range(max(1, iterations)):
+        base = cur
+
+        fr = base.frame
+        u0 = perp(base.axis)
+        w0 = cross(base.axis, u0)
+        a, b = base.radii
+        L = base.length
+        cap0, cap1 = base.caps
+        c0, c1 = base.closed
+
+        def pose(x):
+            t = np.hypot(x[2], x[3])
+            d = base.axis * np.cos(t) + (u0 * x[2] + w0 * x[3]) * np.sinc(t / np.pi)
+            d = d / np.linalg.norm(d)
+            start = base.start + x[0] * fr[0] + x[1] * fr[1]
+            fx = fr[0] - d * (fr[0] @ d)
+            fx = fx / np.linalg.norm(fx)
+            if elliptic:
+                fx = fx * np.cos(x[4]) + cross(d, fx) * np.sin(x[4])
+            return start, d, fx
+
+        def make(x):
+            start, d, fx = pose(x)
+            return base.replace(start=start, end=start + L * d, frame_x=fx)
+
+        def resid(x):
+            # SectionShape.coords' r, inlined for speed (same formula)
+            start, d, fx = pose(x)
+            rel = points - start
+            X, Y, h = rel @ fx, rel @ cross(d, fx), rel @ d
+            e = np.where(h < 0, h, np.where(h > L, h - L, 0.0))
+            c = np.where(h < 0, cap0, cap1)
+            if not c0:
+                e = np.where(h < 0, 0.0, e)
+            if not c1:
+                e = np.where(h > L, 0.0, e)
+            q = np.sqrt((X / a) ** 2 + (Y / b) ** 2 + (e / c) ** 2)
+            n = np.sqrt(X ** 2 + Y ** 2 + e ** 2)
+            return np.where(q > 0, n * (1.0 - 1.0 / np.maximum(q, 1e-12)), -min(a, b))
+
+        x0 = np.zeros(5 if elliptic else 4)
+        lim = np.array([max_shift, max_shift, max_turn, max_turn, max_turn])[:len(x0)]
+        res = least_squares(resid, x0, loss=loss, f_scale=scale, x_scale=0.05, max_nfev=40,
+                            bounds=(-lim, lim))
+        cur = make(res.x)
+        if fit_radii:
+            cur = _refit_radii(points, cur)
+    if free_end:
+        cur = _find_end(points, cur, end_threshold)
+    rms = float(np.sqrt(np.mean(cur.coords(points)[0] ** 2))) if len(points) else np.nan
+    return cur, rms
+
+
+def _refit_radii(points, s: SectionShape) -> SectionShape:
+    q = s.local(points)
+    col = (q[:, 2] >= 0) & (q[:, 2] <= s.length)
+    if col.sum() < 8:
+        return s
+    rho = np.hypot(q[col, 0], q[col, 1])
+    if s.is_cylinder:
+        r = float(rho.mean())
+        return s.replace(radii=np.array([r, r]), caps=s.caps * 0 + r)
+    c2 = (q[col, 0] / np.maximum(rho, 1e-9)) ** 2
+    A = np.column_stack([c2, 1 - c2])   # rho ~ a cos^2 + b sin^2 (first-order ellipse)
+    try:
+        (a, b), *_ = np.linalg.lstsq(A, rho, rcond=None)
+    except np.linalg.LinAlgError:
+        return s
+    if not (a > 0.01 and b > 0.01) or max(a, b) > 3 * min(a, b):
+        r = float(rho.mean())
+        a = b = r
+    return s.replace(radii=np.array([a, b]), caps=np.array([s.caps[0], min(a, b)]))
+
+
+def _find_end(points, s: SectionShape, threshold: float) -> SectionShape:
+    q = s.local(points)
+    rho = np.hypot(q[:, 0], q[:, 1])
+    near_axis = (rho < threshold * s.radii.mean()) & (q[:, 2] > 0.5 * s.length)
+    closed = list(s.closed)
+    if not near_axis.any():
+        closed[1] = False
+        return s.replace(closed=tuple(closed))
+    tip = float(q[near_axis, 2].max())
+    cap = float(s.radii.min())
+    L = max(tip - cap, 0.3 * s.length)
+    closed[1] = True
+    return s.replace(end=s.start + L * s.axis, closed=tuple(closed), caps=np.array([s.caps[0], cap]))
+
+
+def _closest_on_axes(a: SectionShape, b: SectionShape):
+    """Midpoint of the shortest segment between the axis lines of a and b, and the sine of their angle."""
+    d1, d2 = a.axis, b.axis
+    w = a.start - b.start
+    A, B, C = d1 @ d1, d1 @ d2, d2 @ d2
+    D, E = d1 @ w, d2 @ w
+    den = A * C - B * B
+    sin = float(np.linalg.norm(cross(d1, d2)))
+    if den < 1e-9:
+        return None, sin
+    t = (B * E - C * D) / den
+    u = (A * E - B * D) / den
+    return 0.5 * (a.start + t * d1 + b.start + u * d2), sin
+
+
+def fine_adjust(points, pose: Pose, params: FitParams):
+    """Fine adjustment of every section on the points; returns sections, residuals, free-end flags."""
+    secs = dict(pose.sections)
+    body = pose.body
+    resid = {}
+    counts = {}
+    rng = np.random.default_rng(params.fit_seed)
+    for it in range(max(1, params.fit_iterations)):
+        names, k = _assign(points, secs, params.fit_near_distance)
+        new = {}
+        for j, name in enumerate(names):
+            pts = points[k == j]
+            counts[name] = len(pts)
+            if len(pts) < params.fit_min_points:
+                new[name] = secs[name]
+                resid[name] = np.nan
+                continue
+            free = name in ("head", "forearm_l", "forearm_r", "lower_leg_l", "lower_leg_r")
+            if len(pts) > params.fit_section_points:
+                pts = pts[rng.choice(len(pts), params.fit_section_points, replace=False)]
+            shp, rms = fit_section(pts, secs[name], loss=params.fit_loss, iterations=1,
+                                   end_threshold=params.fit_end_threshold,
+                                   free_end=free and it == params.fit_iterations - 1,
+                                   max_shift=params.fit_max_shift,
+                                   max_turn=np.radians(params.fit_max_turn) * (0.3 if name == "chest" else 1.0))
+            new[name] = shp
+            resid[name] = rms
+        secs = _rejoin(new, secs, pose, body, points)
+    return secs, resid, counts
+
+
+def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -> dict:
+    """Reconnect the independently adjusted sections at their joints; ``points`` (n, 3), when
+    given, centre the neck between its sides (`_neck_shift`)."""
+    out = {}
+    w = new["waist"]
+    # pelvis: keep it where the coarse match put it along the (adjusted) waist axis
+    pelvis = w.start + w.axis * ((old["waist"].start - w.start) @ w.axis)
+    Lw = old["waist"].length
+    waist = w.replace(start=pelvis, end=pelvis + Lw * w.axis)
+    out["waist"] = waist
+    c = new["chest"]
+    chest = c.replace(start=waist.end, end=waist.end + c.length * unit(c.end - waist.end + 1e-12 * c.axis))
+    chest = _keep_dir(chest, c.axis, waist.end, old["chest"].length)
+    # the chest's top end hangs under the head, which the points place well (the chest's own
+    # direction is poorly fixed: the arms beside it); within 25 degrees of the waist's axis
+    h = new["head"]
+    target = h.start + h.axis * ((chest.end - h.start) @ h.axis)   # nearest point of the head's axis
+    d = unit(target - waist.end)
+    if d @ waist.axis > np.cos(np.radians(25)):
+        chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+    head_dir = new["head"].axis
+    shift = _neck_shift(points, chest, waist.axis, body) if points is not None else None
+    if shift is not None:
+        # the neck is left-right symmetric: its top end lies midway between the neck's sides
+        d = unit(chest.end + shift - waist.end)
+        if d @ waist.axis > np.cos(np.radians(25)):
+            chest = _keep_dir(chest, d, waist.end, old["chest"].length)
+            # the head keeps its top (the crown is measured) and hangs from the moved neck
+            hd = unit(new["head"].end - chest.end)
+            if hd @ head_dir > np.cos(np.radians(30)):
+                head_dir = hd
+    out["chest"] = chest
+    out["head"] = _keep_dir(new["head"], head_dir, chest.end, new["head"].length)
+    # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
+    # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
+    # the other), then each is taken onto its adjusted upper arm's axis
+    turn = turn_between(old["chest"].axis, chest.axis)
+    roots = {}
+    for prox, *_ in LIMBS:
+        r0 = old[prox].start
+        if prox.startswith("upper_arm"):
+            r0 = chest.start + turn @ (r0 - old["chest"].start)
+        roots[prox] = new[prox].start + new[prox].axis * ((r0 - new[prox].start) @ new[prox].axis)
+    for prox, dist, root_name, _, _ in LIMBS:
+        p, q = new[prox], new[dist]
+        root = roots[prox]
+        mid, sin = _closest_on_axes(p, q)
+        if mid is None or sin < np.sin(np.radians(_ELBOW_STRAIGHT_DEG if root_name.startswith("shoulder") else 25)):
+            # straight joint: keep the proximal length along the adjusted axis
+            mid_len = old[prox].length
+        else:
+            mid_len = float(np.clip((mid - root) @ p.axis, 0.6 * old[prox].length, 1.4 * old[prox].length))
+        joint = root + mid_len * p.axis
+        out[prox] = p.replace(start=root, end=joint)
+        out[dist] = _keep_dir(q, q.axis, joint, q.length)
+    return out
+
+
+def _neck_shift(points, chest: SectionShape, up: np.ndarray, body: StandardBody) -> np.ndarray | None:
+    """(3,) move across the body that centres the chest's top end (the neck) between the sides of
+    the neck, or None (fewer than 10 points there).
+
+    The neck is left-right symmetric in any posture: its sides, in a slab 0.02-0.06 H above the
+    chest's top end (above the trapezius, below the jaw and ears) within 0.08 H of it (clear of
+    arms raised beside the head), lie at the same distance either side of it; their midpoint is
+    taken between the 10th and 90th percentiles across the body (the sides are silhouettes, seen by
+    front and back sensors alike). The chest's own sideways tilt is poorly fixed by its points
+    (arms hang beside it): measured on `paper` scans of the library (k = 1, 3, turned), the neck's
+    left-right error went 2.1 -> 0.6 cm mean (6.2 -> 2.5 cm largest). ``up`` is the waist's axis,
+    across is the chest's wide axis (``frame_x``).
+    """
+    H = body.stature
+    lat = unit(chest.frame_x - up * (chest.frame_x @ up))
+    fwd = cross(up, lat)
+    rel = points - chest.end
+    h, x, y = rel @ up, rel @ lat, rel @ fwd
+    sel = (h > 0.02 * H) & (h < 0.06 * H) & (np.abs(x) < 0.08 * H) & (np.abs(y) < 0.08 * H)
+    if sel.sum() < 10:
+        return None
+    lo, hi = np.quantile(x[sel], [0.1, 0.9])
+    return 0.5 * (lo + hi) * lat
+
+
+def anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:
+    """Slide the torso, head and legs along the torso axis (at most `fit_max_shift`) so that the
+    neck lies the standard head length below the detected top of the head (the crown is the
+    best-measured landmark along the spine); the neck (the chest's top end) and the head follow the
+    crown up to `fit_anchor_max_shift` further up, the chest stretching; the arms stay on
+    their points and only their shoulders follow (`_move_shoulders`); a leg section turned more than
+    45 degrees from the torso axis slides along its own axis only."""
+    h, w = secs["head"], secs["waist"]
+    move, rest = np.zeros(3), np.zeros(3)
+    # children's heads are relatively larger: the adult head length does not hold
+    if h.closed[1] and body.stature >= params.fit_anchor_min_stature:
+        top = h.end + h.caps[1] * h.axis
+        neck = top - body.section_length("head") * h.axis
+        want = float((neck - h.start) @ w.axis)
+        shift = float(np.clip(want, -params.fit_max_shift, params.fit_max_shift))
+        move = shift * w.axis
+        # further only upwards: a crown found from points can fall short of the head's top (a sparse
+        # or half-seen head), never beyond it
+        rest = float(np.clip(want - shift, 0.0, params.fit_anchor_max_shift)) * w.axis
+    out = {k: v.replace(start=v.start + move, end=v.end + move) for k, v in secs.items()
+           if k not in _ARM_SECTIONS}
+    for k in ("thigh_l", "thigh_r", "lower_leg_l", "lower_leg_r"):
+        # the legs were placed on their points: one turned more than 45 degrees from the torso axis
+        # slides along its own axis only (a thigh held level, seated or raised, moved across
+        # itself, would leave its points)
+        if k in secs and abs(secs[k].axis @ w.axis) < np.cos(np.radians(45.0)):
+            v = secs[k]
+            m = v.axis * (move @ v.axis)
+            out[k] = v.replace(start=v.start + m, end=v.end + m)
+    if np.any(rest):
+        out["chest"] = out["chest"].replace(end=out["chest"].end + rest)
+        out["head"] = out["head"].replace(start=out["head"].start + rest, end=out["head"].end + rest)
+    return _move_shoulders(out, secs, body, move)
+
+
+#: The arm chains' sections.
+_ARM_SECTIONS = frozenset(n for prox, dist, root, *_ in LIMBS if root.startswith("shoulder") for n in (prox, dist))
+
+#: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder,
+#: not where the axes meet: two axes this close to parallel meet poorly (1 cm across them moves the
+#: meeting point 1 / tan(35 deg) = 1.4 cm along them; fitted straight arms of the library, bent 11
+#: degrees, came out bent up to 28 degrees; the bent arms are 45 degrees or more; chosen).
+_ELBOW_STRAIGHT_DEG = 35.0
+
+#: The shoulder joint rises with the arm raised above the horizontal (the clavicle elevates with
+#: the scapula, scapulohumeral rhythm): by this fraction of stature times the upper arm's cosine
+#: with the chest's axis. The rig's shoulder joints lie 0.025 H higher with the arms raised 157-161
+#: degrees from hanging (arms_raised, child_arms_raised) than hanging or held out level (t_pose).
+_SHOULDER_RISE = 0.027
+
+
+def _move_shoulders(out: dict, secs: dict, body: StandardBody, move: np.ndarray) -> dict:
+    """Add the arm sections of ``secs`` to ``out`` (the torso already moved by ``move`` (3,)) with
+    their shoulders following the torso and rising with a raised arm (`_SHOULDER_RISE`).
+
+    The arms were fitted on their own points: they stay there, and each shoulder moves along its
+    upper arm's axis only; a bent elbow stays where the two axes meet; a straight elbow keeps the
+    upper arm's length from the shoulder, and the forearm keeps its far end (the fingertips).
+    """
+    up = out["chest"].axis if "chest" in out else secs["waist"].axis
+    for prox, dist, root, *_ in LIMBS:
+        if not root.startswith("shoulder"):
+            continue
+        if prox not in secs or dist not in secs:   # an incomplete chain stays where it is
+            out.update({n: secs[n] for n in (prox, dist) if n in secs})
+            continue
+        p, q = secs[prox], secs[dist]
+        rise = _SHOULDER_RISE * body.stature * max(0.0, float(p.axis @ up))
+        s = float((move + rise * up) @ p.axis)
+        if np.linalg.norm(cross(p.axis, q.axis)) < np.sin(np.radians(_ELBOW_STRAIGHT_DEG)):
+            out[prox] = p.replace(start=p.start + s * p.axis, end=p.end + s * p.axis)
+            out[dist] = q.replace(start=out[prox].end) if s * (p.axis @ q.axis) < q.length - 0.05 else q
+        else:
+            out[prox] = p.replace(start=p.start + s * p.axis)
+            out[dist] = q
+    return out
+
+
+def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
+    return s.replace(start=start, end=start + length * unit(d))

@@ -1,0 +1,67 @@
+"""Small vector helpers of the posture estimation: (..., 3) arrays in, arrays out."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def fibonacci_sphere(n: int, hemisphere: bool = False) -> np.ndarray:
+    """(n, 3) unit vectors spread evenly over the sphere (or the upper hemisphere, z >= 0)."""
+    i = np.arange(n) + 0.5
+    z = 1 - i / n if hemisphere else 1 - 2 * i / n
+    phi = i * np.pi * (3 - np.sqrt(5))
+    r = np.sqrt(1 - z ** 2)
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def cross(a, b) -> np.ndarray:
+    """Cross product of (..., 3) arrays (np.cross is slow on small arrays)."""
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
+
+
+def perp(d: np.ndarray) -> np.ndarray:
+    """(..., 3) a unit vector perpendicular to each unit vector ``d`` (..., 3)."""
+    ref = np.where(np.abs(d[..., 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
+    u = cross(d, ref)
+    return u / np.linalg.norm(u, axis=-1, keepdims=True)
+
+
+def rotvec(v: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation matrix of rotation vector ``v`` (Rodrigues)."""
+    th = float(np.linalg.norm(v))
+    if th < 1e-12:
+        return np.eye(3)
+    k = v / th
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(th) * K + (1 - np.cos(th)) * K @ K
+
+
+def unit(v):
+    """``v`` (..., 3) scaled to unit length along its last axis."""
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def tangent_dir(d0: np.ndarray, a: float, b: float) -> np.ndarray:
+    """Unit direction near ``d0`` moved by angles (a, b) radians in its tangent plane."""
+    u = perp(d0)
+    w = cross(d0, u)
+    return unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
+
+
+def frames_from_dirs(d: np.ndarray) -> np.ndarray:
+    """(m, 3, 3) frames (rows x, y, axis) for unit directions ``d`` (m, 3)."""
+    u = perp(d)
+    return np.stack([u, cross(d, u), d], axis=1)
+
+
+def turn_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(3, 3) the smallest rotation taking unit vector ``a`` to unit vector ``b``."""
+    v = cross(a, b)
+    s = float(np.linalg.norm(v))
+    if s < 1e-9:
+        return np.eye(3)
+    return rotvec(v / s * np.arctan2(s, float(a @ b)))
