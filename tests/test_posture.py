@@ -506,21 +506,51 @@ def library_table():
     return [dict(run_one(poses.load_body(n), c, 0.01), body=n) for n in names for c in CONDITIONS]
 
 
+def test_a_section_pointed_at_the_cameras_is_missing_from_the_scan_and_others_are_seen():
+    """`fit_table.seen_fractions` on the simulator's ground truth: standing shows every section;
+    arms held forward (seen end-on by both cameras) leave the forearms out, so listing them unfitted
+    is what the issue allows, while listing a forearm of the standing scan is a miss."""
+    if not {"standing", "arms_forward"} <= set(_library()):
+        pytest.skip("library postures missing")
+    import poses
+    import simulator
+    from benchmarks.fit_table import SEEN, outcome, seen_fractions
+
+    seen = {}
+    for name in ("standing", "arms_forward"):
+        body = poses.load_body(name)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            scan = simulator.scan(body, simulator.preset("paper", resolution=0.01, k=1))
+        seen[name] = seen_fractions(body, scan.gt_section, 0.01)
+    assert min(seen["standing"].values()) >= SEEN
+    assert seen["arms_forward"]["forearm_l"] < 0.5 * SEEN and seen["arms_forward"]["forearm_r"] < 0.5 * SEEN
+    err, ang = {"neck": 0.02, "knee_l": 0.03}, {"thigh_l": 5.0}
+    assert outcome(err, ang, ("forearm_l",), seen["arms_forward"]) == "part"
+    assert outcome(err, ang, ("forearm_l",), seen["standing"]) == "unfit"
+    assert outcome(err, ang, ()) == "pass"
+
+
 def test_library_fits_are_never_silent_nonsense(library_table):
     """No WRONG fit (median > 10 cm or a joint > 30 cm with no error raised), and the issue's targets
-    met on at least 74 of the 84 runs (measured at this commit: 77)."""
+    met on at least 68 of the 84 runs (measured at this commit: 71; a run with a section listed
+    unfitted counts only when the scan misses that section, `benchmarks.fit_table.SEEN`)."""
     outcomes = {(r["body"], r["condition"]): r["outcome"] for r in library_table}
     assert not [k for k, o in outcomes.items() if o == "WRONG"]
-    assert sum(o in ("pass", "part") for o in outcomes.values()) >= 74
+    assert sum(o in ("pass", "part") for o in outcomes.values()) >= 68
 
 
-@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 7 of 84 runs miss them: "
+@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 13 of 84 runs miss them: "
+                          "arm_across k1, k2, k3 (fa_r listed unfitted, the scan shows it); "
                           "arms_close k3 (median 1.9 / max 11.1 cm, wrist_r); "
                           "child_arms_raised k1 (median 4.0 / max 6.9 cm, elbow_r); "
                           "child_arms_raised k2 (median 7.8 / max 12.6 cm, elbow_r); "
                           "child_arms_raised k3 (median 8.2 / max 14.0 cm, elbow_r); "
+                          "heavy_a_pose k3 (both arms listed unfitted, the scan shows them); "
                           "seated k1_rot137 (median 5.1 / max 14.2 cm, hip_r); "
                           "squat k2 (median 2.3 / max 11.3 cm, knee_r); "
-                          "tall_walking k2 (refused)")
+                          "squat k3 (ua_l listed unfitted, the scan shows it); "
+                          "tall_walking k2 (refused); "
+                          "woman_standing k1 (fa_r listed unfitted, the scan shows it)")
 def test_library_fits_meet_the_issue_targets(library_table):
     assert all(r["outcome"] in ("pass", "part") for r in library_table)
