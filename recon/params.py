@@ -206,6 +206,30 @@ class SurfaceParams:
         Besides the paper's removal of triangles made only of multi-section points, remove the
         triangles whose centroid lies deeper than this many widths inside an adjacent section's
         model: they span a joint's opening inside the body where the seam has gaps. 0 disables.
+    fold_cos, fold_edge_factor : float
+        A triangle folds against its chart when its 3D normal, with the vertex order that is
+        counter-clockwise in the chart, has a cosine below ``fold_cos`` with the chart's
+        projection direction (the column's radial direction, the cap's direction from its centre;
+        see `recon.surface.chart_agreement`); such a triangle whose longest 3D edge is also longer
+        than ``fold_edge_factor`` median spacings is removed (paper: none; ``fold_cos = -1``
+        switches it off). The reason is geometric, not the length: where the surface folds back
+        over the chart (curled fingers over the palm, in the forearm's column chart at 10 mm),
+        the two layers' points interleave in 2D and Delaunay joins them with triangles flipped
+        against the chart, in the air; a short flipped triangle turns around the fold's rim, which
+        is surface, so only the long ones (longer than the hull peel's limit) are joins across
+        the fold. A hole in the data, covered by the paper, is not flipped and stays covered.
+        (chosen) Measured on the 21 shipped postures (`paper` scans; mean bridging area fraction of
+        ``proposed`` and postures under 0.5 % / mean spurious fraction / mean area neither
+        spurious nor bridging, m^2): oracle posture: off 0.469 %, 12/21 / 0.0404 / 1.4641;
+        fold_cos 0 with factor 4: 0.366 %, 16/21 / 0.0340 / 1.4551 (standing 0.49 -> 0.27 %,
+        hands_on_hips 0.74 -> 0.19 %, knee_raised 0.60 -> 0.26 %, tall_standing 0.65 -> 0.39 %);
+        factor 0, 2 or 6: the same bridging, 0.0338 to 0.0341 / 1.4524 to 1.4554; fold_cos -0.5:
+        0.366 %, 0.0351; fold_cos 0.3: 0.347 %, 17/21, but 0.0328 / 1.4499 (edge-on triangles of
+        real surface go too: shoulder tops in the chest's column). Estimated posture: off 1.015 %,
+        5/21, max 3.48 %; fold_cos 0, factor 4: 0.788 %, 6/21, max 1.61 % (arms_forward 2.40 ->
+        0.35 %, hands_on_hips 3.48 -> 0.88 %, a whole flap across armpit or hip flipped against
+        the arm's chart); factor 6 or 8: 0.796 %; fold_cos -0.5: 0.997 % (those flaps have
+        cosines between -0.5 and 0).
     """
 
     seam_overlap: float = 0.6       # paper 3.3, radians
@@ -218,6 +242,8 @@ class SurfaceParams:
     open_joint_ends: bool = True    # paper silent
     workers: int = 2                # not a method parameter: speed only
     inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
+    fold_cos: float = 0.0           # paper: none (-1 = off); chosen, see above
+    fold_edge_factor: float = 4.0   # paper: none; chosen, spacings (= hull_edge_factor)
 
     def __post_init__(self):
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
@@ -226,6 +252,8 @@ class SurfaceParams:
         _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
         _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
         _check(int(self.workers) >= 1, "workers", self.workers, "an integer >= 1")
+        _check(-1 <= self.fold_cos <= 1, "fold_cos", self.fold_cos, "in [-1, 1] (-1 = off)")
+        _check(self.fold_edge_factor >= 0, "fold_edge_factor", self.fold_edge_factor, ">= 0 spacings")
         _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 

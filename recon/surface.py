@@ -15,7 +15,10 @@ holds the points beyond the column's end that no column triangle uses, plus the 
 column's boundary loop at that end (the overlap), and keeps the triangles inside that loop, so
 the cap closes the column along shared edges; overlapping triangles are not kept.
 
-Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
+Where the surface folds back over its chart (curled fingers over the palm, at 10 mm one layer
+of points over another in the forearm's chart), Delaunay joins the two layers with triangles in
+the air; with ``fold_cos`` set, the long triangles that are flipped against their chart are
+removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
 convex-hull slivers), `merge_sections` joins the sections through their shared points and
 removes the triangles made only of multi-section points (paper 3.3), and `orient_faces` turns
 every triangle outward.
@@ -175,6 +178,63 @@ def cap_chart(local: np.ndarray, shape: SectionShape, end: int):
     return np.column_stack([R * phi * np.cos(theta), R * phi * np.sin(theta)]), phi
 
 
+def chart_agreement(points: np.ndarray, faces: np.ndarray, uv: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """(k,) cosine between each triangle's 3D normal and its chart's projection direction, signed
+    by the triangle's orientation in the chart.
+
+    A chart maps the surface onto the model along ``direction`` (the column's radial direction,
+    a cap's direction from its centre). Where the surface is a graph over the chart (a limb, the
+    head), a triangle that is counter-clockwise in the chart has its 3D normal along that
+    direction: the value is near +1. Where the surface folds back over the chart (curled fingers,
+    a fold of skin), Delaunay joins points of the two layers: such a triangle stands on edge to
+    the chart (value near 0) or is flipped (negative).
+
+    Parameters
+    ----------
+    points : (m, 3) float
+        3D points, metres.
+    faces : (k, 3) int
+        Triangles over ``points`` (and over ``uv``: the same vertex order).
+    uv : (k, 3, 2) float
+        Chart coordinates of each triangle's vertices.
+    direction : (k, 3) float
+        Unit projection direction of the chart at each triangle (outward).
+    """
+    p = points[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    ln = np.sqrt(np.einsum("ij,ij->i", n, n))
+    a = uv[:, 1] - uv[:, 0]
+    b = uv[:, 2] - uv[:, 0]
+    ccw = np.sign(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = ccw * np.einsum("ij,ij->i", n, direction) / ln
+    return np.where(ln > 0, cos, 0.0)
+
+
+def _column_direction(shape: SectionShape, local: np.ndarray) -> np.ndarray:
+    """(k, 3) unit outward normal (world frame) of the (elliptic) column at the points ``local``
+    (section frame)."""
+    a, b = shape.radii
+    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, np.zeros(len(local))]) @ shape.frame
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
+def _cap_direction(shape: SectionShape, local: np.ndarray, end: int) -> np.ndarray:
+    """(k, 3) unit outward normal (world frame) of the (ellipsoidal) cap ``end`` at the points
+    ``local`` (section frame), in chart orientation: the start cap's chart is seen from inside (its u, v turn like x, y while
+    its outside is -h), so its direction is flipped."""
+    a, b = shape.radii
+    c = shape.caps[end]
+    e = -local[:, 2] if end == 0 else local[:, 2] - shape.length
+    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, e / c ** 2])
+    if end == 0:
+        d[:, :2] *= -1  # outward is (x, y, -e); the chart turns the other way: -(outward)
+    d = d @ shape.frame
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
 def section_surface(points: np.ndarray, shape: SectionShape,
                     params: SurfaceParams = SurfaceParams(), spacing: float | None = None) -> np.ndarray:
     """Triangulate one section's points by Delaunay on its model surface.
@@ -207,6 +267,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     h_hi = L if shape.closed[1] else np.inf
 
     parts = []
+    agree = []  # per part, `chart_agreement` of its triangles
     # column chart
     sel = np.flatnonzero((h >= h_lo - band) & (h <= h_hi + band))
     if len(sel) >= 3:
@@ -221,7 +282,11 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             # a triangle around half the column or more is a hull artefact that would close an
             # open end into a fan (its copies make the seam region look like a closed loop)
             narrow = u.max(axis=1) - u.min(axis=1) < np.pi * R
-            parts.append(faces[own & narrow])
+            keep = own & narrow
+            faces = faces[keep]
+            parts.append(faces)
+            cen = local[faces].mean(axis=1)
+            agree.append(chart_agreement(points, faces, uv[simp[keep]], _column_direction(shape, cen)))
     # cap charts: each fills the column's end loop
     col_faces = parts[0] if parts else np.zeros((0, 3), dtype=np.int64)
     used = np.zeros(m, dtype=bool)
@@ -252,7 +317,16 @@ def section_surface(points: np.ndarray, shape: SectionShape,
         else:  # no column to join: the cap keeps what lies beyond the column's end
             hc = h[faces].mean(axis=1)
             own = hc < 0 if end == 0 else hc > L
-        parts.append(faces[own])
+        faces = faces[own]
+        parts.append(faces)
+        agree.append(chart_agreement(points, faces, uv_all[faces],
+                                     _cap_direction(shape, local[faces].mean(axis=1), end)))
+    if parts and params.fold_cos > -1:
+        # folds (see `chart_agreement`), after the caps were built on the whole column's end loop
+        allf = np.concatenate(parts)
+        folded = (np.concatenate(agree) < params.fold_cos) & (
+            max_edge_length(points, allf) > params.fold_edge_factor * spacing)
+        parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
     faces = faces[peel_boundary(faces, max_edge_length(points, faces) > hull_limit)]
     if params.max_edge_factor > 0 and len(faces):

@@ -144,3 +144,83 @@ def test_delaunay_of_degenerate_charts():
     assert _delaunay(np.zeros((5, 2))) is None                         # coincident
     square = _delaunay(np.array([[0.0, 0], [1, 0], [0, 1], [1, 1]]))
     assert square.shape == (2, 3)
+
+
+def skirt_points(step=0.01, R=0.05, L=0.4, gap=0.05, z0=0.15, z1=0.27, width=1.2, seed=0):
+    """A tube (radius ``R``) with a skirt over part of its circumference: a roof at ``z1`` out to
+    ``R + gap`` and a sheet hanging from it down to ``z0``, like curled fingers over the palm.
+    Jittered grid of ``step`` metres. Returns the points and the number of tube points (first)."""
+    rng = np.random.default_rng(seed)
+
+    def sheet(u0, u1, v0, v1):
+        u, v = np.meshgrid(np.arange(u0, u1, step), np.arange(v0, v1, step))
+        q = np.column_stack([u.ravel(), v.ravel()])
+        return q + rng.uniform(-0.3, 0.3, q.shape) * step
+
+    q = sheet(0, 2 * np.pi * R, 0, L)
+    tube = np.column_stack([R * np.cos(q[:, 0] / R), R * np.sin(q[:, 0] / R), q[:, 1]])
+    Rl = R + gap
+    q = sheet(-width / 2 * Rl, width / 2 * Rl, z0, z1)
+    lip = np.column_stack([Rl * np.cos(q[:, 0] / Rl), Rl * np.sin(q[:, 0] / Rl), q[:, 1]])
+    q = sheet(-width / 2 * R, width / 2 * R, R + step / 2, Rl)
+    t = q[:, 0] / R
+    roof = np.column_stack([q[:, 1] * np.cos(t), q[:, 1] * np.sin(t), np.full(len(q), z1)])
+    return np.vstack([tube, lip, roof]), len(tube)
+
+
+def _tilt():
+    """A rotation (3, 3) taking +z to a tilted axis, so that the section frame is not the identity."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("xyz", [0.7, -0.4, 1.1]).as_matrix()
+
+
+def test_fold_rule_removes_the_triangles_across_a_fold():
+    """Under the skirt the tube's and the skirt's points interleave in the column chart: Delaunay
+    joins the two layers with triangles in the air (centroid between the tube and the skirt).
+    The fold rule removes them; switched off (fold_cos = -1), the paper's surface keeps them."""
+    P, nt = skirt_points()
+    Rm = _tilt()
+    shape = SectionShape("forearm_l", Rm @ [0, 0, 0], Rm @ [0, 0, 0.4], [0.05, 0.05], Rm @ [1, 0, 0],
+                         closed=(False, False))
+    Pw = P @ Rm.T
+
+    def air_area(faces):
+        c = P[faces].mean(axis=1)
+        r = np.hypot(c[:, 0], c[:, 1])
+        air = (r > 0.055) & (r < 0.095) & (c[:, 2] < 0.265)
+        return S.face_areas(P, faces[air]).sum()
+
+    paper = S.section_surface(Pw, shape, SurfaceParams(fold_cos=-1.0))
+    folded = S.section_surface(Pw, shape)
+    assert air_area(paper) > 0.05                    # m^2: hundreds of cm^2 across the fold
+    assert air_area(folded) < 0.05 * air_area(paper)
+    # the tube away from the skirt is untouched
+    far = lambda f: f[(P[f][:, :, 2].min(axis=1) > 0.3) | (P[f][:, :, 2].max(axis=1) < 0.12)]
+    assert S.face_keys(far(paper)).tolist() == S.face_keys(far(folded)).tolist()
+
+
+@pytest.mark.parametrize("closed", [(False, False), (True, True)])
+def test_fold_rule_keeps_convex_tubes_whole(closed):
+    """On a convex tube or capsule nothing folds: the rule removes no triangle."""
+    Rm = _tilt()
+    if closed[0]:
+        P = capsule_points() @ Rm.T
+        shape = SectionShape("thigh_l", Rm @ [0, 0, -0.2], Rm @ [0, 0, 0.2], [0.06, 0.06], Rm @ [1, 0, 0])
+    else:
+        P = cylinder_points() @ Rm.T
+        shape = SectionShape("upper_arm_l", [0, 0, 0], Rm @ [0, 0, 0.4], [0.05, 0.05], Rm @ [1, 0, 0],
+                             closed=closed)
+    on = S.section_surface(P, shape, SurfaceParams(fold_cos=0.0, fold_edge_factor=0.0))
+    off = S.section_surface(P, shape, SurfaceParams(fold_cos=-1.0))
+    assert len(on) > 1000 and on.tolist() == off.tolist()
+
+
+def test_chart_agreement_sign():
+    """+1 for a counter-clockwise chart triangle whose normal points along the chart's direction,
+    -1 when flipped, 0 for one standing on edge."""
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    f = np.array([[0, 1, 2], [0, 1, 2], [0, 1, 3]])
+    uv = np.array([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]]], float)
+    d = np.array([[0, 0, 1.0]] * 3)
+    assert np.allclose(S.chart_agreement(P, f, uv, d), [1, -1, 0])
