@@ -20,13 +20,16 @@ of points over another in the forearm's chart), Delaunay joins the two layers wi
 the air; with ``fold_cos`` set, the long triangles that are flipped against their chart are
 removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
 convex-hull slivers), `merge_sections` joins the sections through their shared points and
-removes the triangles made only of multi-section points (paper 3.3), and `orient_faces` turns
-every triangle outward.
+removes the triangles made only of multi-section points (paper 3.3), `seen_through` removes the
+triangles that a camera ray crossed in front of its point (free space, ``carve_margin``), and
+`orient_faces` turns every triangle outward.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
+from itertools import chain
 
 import numpy as np
 
@@ -460,6 +463,83 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
     return out
 
 
+def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
+                 margin: float = 0.5, min_edge: float = 2.0, reach: float = 3.0,
+                 tree=None, workers: int = 1, chunk: int = 200000) -> np.ndarray:
+    """(k,) bool: faces that the sensor saw through (free-space evidence).
+
+    Every point was measured along a ray from the point toward its camera (``view_dir``), and
+    that ray crossed only air: a triangle that it crosses, in front of the point, is not surface
+    (the space carving argument). A covered hole that no ray looked through is not affected.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        All measured points (meshed or not: each one is evidence).
+    faces : (k, 3) int
+    view_dir : (n, 3) or (3,) float
+        Unit direction from each point toward its camera (one for all: a parallel projection).
+    spacing : float
+        Median point spacing, metres.
+    margin : float
+        A point counts only when it lies more than ``margin`` spacings behind the triangle's plane
+        (noise, and the chords of a concave surface, lie within a fraction of a spacing).
+    min_edge : float
+        Only triangles with an edge longer than ``min_edge`` spacings are tested (a smaller one
+        lies within a spacing of its vertices' surface and cannot hide a point ``margin`` behind it).
+    reach : float
+        Points farther than the triangle's circumradius plus ``reach`` spacings from its centroid
+        are not tested.
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+    workers : int
+        Threads of the neighbour query (speed only).
+    chunk : int
+        Pairs of (triangle, point) tested at a time (memory only).
+    """
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0 or view_dir is None:
+        return out
+    cand = np.flatnonzero(max_edge_length(points, faces) > min_edge * spacing)
+    if len(cand) == 0:
+        return out
+    v = points[faces[cand]]
+    cen = v.mean(axis=1)
+    rad = np.sqrt(((v - cen[:, None]) ** 2).sum(axis=2).max(axis=1)) + reach * spacing
+    if tree is None:
+        tree = cKDTree(points)
+    near = tree.query_ball_point(cen, rad, workers=workers)
+    cnt = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+    tri = np.repeat(np.arange(len(cand)), cnt)
+    pts = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(cnt.sum()))
+    d = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
+    e1 = v[:, 1] - v[:, 0]
+    e2 = v[:, 2] - v[:, 0]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    hit = np.zeros(len(cand), dtype=bool)
+    for a in range(0, len(tri), chunk):  # Moller-Trumbore on the pairs, in chunks
+        t_, p_ = tri[a:a + chunk], pts[a:a + chunk]
+        tvec = points[p_] - v[t_, 0]
+        deep = np.abs(np.einsum("ij,ij->i", tvec, n[t_])) > margin * spacing  # also drops vertices
+        t_, p_, tvec = t_[deep], p_[deep], tvec[deep]
+        dd = d[p_]
+        pvec = np.cross(dd, e2[t_])
+        det = np.einsum("ij,ij->i", e1[t_], pvec)
+        ok = np.abs(det) > 1e-15
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        u = np.einsum("ij,ij->i", tvec, pvec) * inv
+        qvec = np.cross(tvec, e1[t_])
+        w = np.einsum("ij,ij->i", dd, qvec) * inv
+        t = np.einsum("ij,ij->i", e2[t_], qvec) * inv
+        h = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
+        hit[t_[h]] = True
+    out[cand[hit]] = True
+    return out
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -510,11 +590,14 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     fit : BodyFit
     params : SurfaceParams
     view_dir : (n, 3) or (3,) float, optional
-        Unit directions toward the sensor, for orientation.
+        Unit directions toward the sensor, for orientation and for ``params.carve_margin``
+        (`seen_through`; without them nothing is carved).
     drop_inner : bool
         Remove triangles made only of points in several sections (see `merge_sections`) and,
         with ``params.open_joint_ends``, leave open the ends where a child section continues
-        (both keep the inside of the body out of the surface).
+        (both keep the inside of the body out of the surface); also apply the fold rule
+        (``params.fold_cos``) and the free-space carving (``params.carve_margin``). False (the
+        simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
 
@@ -551,9 +634,12 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                 closed[end] = False
         jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
 
+    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles)
+    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0)
+
     def run(job):
         j, idx, shape = job
-        return j, idx[section_surface(points[idx], shape, params, spacing)]
+        return j, idx[section_surface(points[idx], shape, sp, spacing)]
 
     if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
@@ -566,6 +652,10 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
+        faces, sec = faces[keep], sec[keep]
+    if drop_inner and params.carve_margin > 0 and view_dir is not None:
+        keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
+                             params.carve_min_edge, params.carve_reach, workers=params.workers)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped

@@ -224,3 +224,45 @@ def test_chart_agreement_sign():
     uv = np.array([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]]], float)
     d = np.array([[0, 0, 1.0]] * 3)
     assert np.allclose(S.chart_agreement(P, f, uv, d), [1, -1, 0])
+
+
+def test_seen_through_removes_only_what_a_ray_crossed():
+    """A sheet of points seen from +z: a triangle floating 3 cm above points is air (their rays
+    cross it); the same triangle over a hole in the data (no point below) stays, as does a
+    triangle of the sheet itself, even with noise."""
+    rng = np.random.default_rng(0)
+    g = np.stack(np.meshgrid(np.arange(0, 0.3, 0.01), np.arange(0, 0.3, 0.01)), -1).reshape(-1, 2)
+    hole = (np.abs(g[:, 0] - 0.22) < 0.045) & (np.abs(g[:, 1] - 0.15) < 0.045)
+    g = g[~hole]
+    P = np.column_stack([g, rng.normal(0, 0.0005, len(g))])
+    extra = np.array([[0.05, 0.10, 0.03], [0.10, 0.10, 0.03], [0.07, 0.15, 0.03],     # over points
+                      [0.20, 0.13, 0.03], [0.24, 0.13, 0.03], [0.22, 0.17, 0.03]])    # over the hole
+    P = np.vstack([P, extra])
+    n = len(P)
+    in_sheet = np.array([np.argmin(np.linalg.norm(g - [0.1, 0.1], axis=1)),
+                         np.argmin(np.linalg.norm(g - [0.13, 0.1], axis=1)),
+                         np.argmin(np.linalg.norm(g - [0.1, 0.13], axis=1))])
+    faces = np.array([[n - 6, n - 5, n - 4], [n - 3, n - 2, n - 1], in_sheet])
+    vd = np.tile([0.0, 0.0, 1.0], (n, 1))
+    got = S.seen_through(P, faces, vd, 0.01, margin=0.5, min_edge=0.0)
+    assert got.tolist() == [True, False, False]
+    # seen from the side instead, no ray crosses the floating triangle
+    side = S.seen_through(P, faces, np.tile([1.0, 0, 0], (n, 1)), 0.01, margin=0.5, min_edge=0.0)
+    assert not side.any()
+
+
+def test_carving_keeps_a_convex_capsule_whole():
+    """Points seen from outside a convex body: no ray crosses its surface, nothing is carved."""
+    P = capsule_points()
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": shape}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:, SECTIONS.index("thigh_l")] = True
+    normal = P - np.column_stack([np.zeros((len(P), 2)), np.clip(P[:, 2], -0.2, 0.2)])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    vd = normal + [0.4, -0.3, 0.5]                   # cameras off the normal, on the outside
+    vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    vd = np.where(np.einsum("ij,ij->i", vd, normal)[:, None] > 0.3, vd, normal)
+    on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.1, carve_min_edge=0.0), vd)[0]
+    off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.0), vd)[0]
+    assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
