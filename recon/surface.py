@@ -464,7 +464,7 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
 
 
 def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
-                 margin: float = 0.5, min_edge: float = 2.0, reach: float = 3.0,
+                 margin: float = 0.5, min_edge: float = 2.0, reach: float = 1.0, min_rays: int = 1,
                  tree=None, workers: int = 1, chunk: int = 200000) -> np.ndarray:
     """(k,) bool: faces that the sensor saw through (free-space evidence).
 
@@ -490,6 +490,9 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
     reach : float
         Points farther than the triangle's circumradius plus ``reach`` spacings from its centroid
         are not tested.
+    min_rays : int
+        A triangle is air when at least this many points' rays cross it (2: a stray point
+        behind the surface, an outlier, does not open a hole by itself).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
     workers : int
@@ -519,7 +522,7 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
     e2 = v[:, 2] - v[:, 0]
     n = np.cross(e1, e2)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-    hit = np.zeros(len(cand), dtype=bool)
+    hits = np.zeros(len(cand), dtype=np.int64)
     for a in range(0, len(tri), chunk):  # Moller-Trumbore on the pairs, in chunks
         t_, p_ = tri[a:a + chunk], pts[a:a + chunk]
         tvec = points[p_] - v[t_, 0]
@@ -535,8 +538,8 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
         w = np.einsum("ij,ij->i", dd, qvec) * inv
         t = np.einsum("ij,ij->i", e2[t_], qvec) * inv
         h = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
-        hit[t_[h]] = True
-    out[cand[hit]] = True
+        hits += np.bincount(t_[h], minlength=len(cand))
+    out[cand[hits >= min_rays]] = True
     return out
 
 
@@ -655,7 +658,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         faces, sec = faces[keep], sec[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
-                             params.carve_min_edge, params.carve_reach, workers=params.workers)
+                             params.carve_min_edge, params.carve_reach, params.carve_min_rays,
+                             workers=params.workers)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
