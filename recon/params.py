@@ -214,10 +214,11 @@ class SurfaceParams:
         than ``fold_edge_factor`` median spacings is removed (paper: none; ``fold_cos = -1``
         switches it off; ``proposed`` only: ``simple`` keeps the paper's surface, as for the
         inner triangles; applied to ``simple`` too it lowered simple's mean spurious fraction
-        from 0.128 to 0.074 on the oracle postures, proposed still below it on 21/21). The reason is geometric, not the length: where the surface folds back
-        over the chart (curled fingers over the palm, in the forearm's column chart at 10 mm),
-        the two layers' points interleave in 2D and Delaunay joins them with triangles flipped
-        against the chart, in the air; a short flipped triangle turns around the fold's rim, which
+        from 0.128 to 0.074 on the oracle postures, proposed still below it on 21/21). The
+        reason is geometric, not the length: where the surface folds back over the chart (curled
+        fingers over the palm, in the forearm's column chart at 10 mm), the two layers' points
+        interleave in 2D and Delaunay joins them with triangles flipped against the chart, in
+        the air; a short flipped triangle turns around the fold's rim, which
         is surface, so only the long ones (longer than the hull peel's limit) are joins across
         the fold. A hole in the data, covered by the paper, is not flipped and stays covered.
         (chosen) Measured on the 21 shipped postures (`paper` scans; mean bridging area fraction of

@@ -18,11 +18,11 @@ the cap closes the column along shared edges; overlapping triangles are not kept
 Where the surface folds back over its chart (curled fingers over the palm, at 10 mm one layer
 of points over another in the forearm's chart), Delaunay joins the two layers with triangles in
 the air; with ``fold_cos`` set, the long triangles that are flipped against their chart are
-removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
-convex-hull slivers), `merge_sections` joins the sections through their shared points and
-removes the triangles made only of multi-section points (paper 3.3), `seen_through` removes the
-triangles that a camera ray crossed in front of its point (free space, ``carve_margin``), and
-`orient_faces` turns every triangle outward.
+removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's
+boundary inwards (Delaunay's convex-hull slivers), `merge_sections` joins the sections through
+their shared points and removes the triangles made only of multi-section points (paper 3.3),
+`seen_through` removes the triangles that a camera ray crossed in front of its point (free
+space, ``carve_margin``), and `orient_faces` turns every triangle outward.
 """
 
 from __future__ import annotations
@@ -181,7 +181,8 @@ def cap_chart(local: np.ndarray, shape: SectionShape, end: int):
     return np.column_stack([R * phi * np.cos(theta), R * phi * np.sin(theta)]), phi
 
 
-def chart_agreement(points: np.ndarray, faces: np.ndarray, uv: np.ndarray, direction: np.ndarray) -> np.ndarray:
+def chart_agreement(points: np.ndarray, faces: np.ndarray, uv: np.ndarray,
+                    direction: np.ndarray) -> np.ndarray:
     """(k,) cosine between each triangle's 3D normal and its chart's projection direction, signed
     by the triangle's orientation in the chart.
 
@@ -218,15 +219,16 @@ def _column_direction(shape: SectionShape, local: np.ndarray) -> np.ndarray:
     """(k, 3) unit outward normal (world frame) of the (elliptic) column at the points ``local``
     (section frame)."""
     a, b = shape.radii
-    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, np.zeros(len(local))]) @ shape.frame
+    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, np.zeros(len(local))])
+    d = d @ shape.frame
     n = np.linalg.norm(d, axis=1, keepdims=True)
     return d / np.where(n > 0, n, 1.0)
 
 
 def _cap_direction(shape: SectionShape, local: np.ndarray, end: int) -> np.ndarray:
     """(k, 3) unit outward normal (world frame) of the (ellipsoidal) cap ``end`` at the points
-    ``local`` (section frame), in chart orientation: the start cap's chart is seen from inside (its u, v turn like x, y while
-    its outside is -h), so its direction is flipped."""
+    ``local`` (section frame), in chart orientation: the start cap's chart is seen from inside
+    (its u, v turn like x, y while its outside is -h), so its direction is flipped."""
     a, b = shape.radii
     c = shape.caps[end]
     e = -local[:, 2] if end == 0 else local[:, 2] - shape.length
