@@ -206,6 +206,60 @@ class SurfaceParams:
         Besides the paper's removal of triangles made only of multi-section points, remove the
         triangles whose centroid lies deeper than this many widths inside an adjacent section's
         model: they span a joint's opening inside the body where the seam has gaps. 0 disables.
+    fold_cos, fold_edge_factor : float
+        A triangle folds against its chart when its 3D normal, with the vertex order that is
+        counter-clockwise in the chart, has a cosine below ``fold_cos`` with the chart's
+        projection direction (the column's radial direction, the cap's direction from its centre;
+        see `recon.surface.chart_agreement`); such a triangle whose longest 3D edge is also longer
+        than ``fold_edge_factor`` median spacings is removed (paper: none; ``fold_cos = -1``
+        switches it off; ``proposed`` only: ``simple`` keeps the paper's surface, as for the
+        inner triangles; applied to ``simple`` too it lowered simple's mean spurious fraction
+        from 0.128 to 0.074 on the oracle postures, proposed still below it on 21/21). The
+        reason is geometric, not the length: where the surface folds back over the chart (curled
+        fingers over the palm, in the forearm's column chart at 10 mm), the two layers' points
+        interleave in 2D and Delaunay joins them with triangles flipped against the chart, in
+        the air; a short flipped triangle turns around the fold's rim, which
+        is surface, so only the long ones (longer than the hull peel's limit) are joins across
+        the fold. A hole in the data, covered by the paper, is not flipped and stays covered.
+        (chosen) Measured on the 21 shipped postures (`paper` scans; mean bridging area fraction of
+        ``proposed`` and postures under 0.5 % / mean spurious fraction / mean area neither
+        spurious nor bridging, m^2): oracle posture: off 0.469 %, 12/21 / 0.0404 / 1.4641;
+        fold_cos 0 with factor 4: 0.366 %, 16/21 / 0.0340 / 1.4551 (standing 0.49 -> 0.27 %,
+        hands_on_hips 0.74 -> 0.19 %, knee_raised 0.60 -> 0.26 %, tall_standing 0.65 -> 0.39 %);
+        factor 0, 2 or 6: the same bridging, 0.0338 to 0.0341 / 1.4524 to 1.4554; fold_cos -0.5:
+        0.366 %, 0.0351; fold_cos 0.3: 0.347 %, 17/21, but 0.0328 / 1.4499 (edge-on triangles of
+        real surface go too: shoulder tops in the chest's column). Estimated posture: off 1.015 %,
+        5/21, max 3.48 %; fold_cos 0, factor 4: 0.788 %, 6/21, max 1.61 % (arms_forward 2.40 ->
+        0.35 %, hands_on_hips 3.48 -> 0.88 %, a whole flap across armpit or hip flipped against
+        the arm's chart); factor 6 or 8: 0.796 %; fold_cos -0.5: 0.997 % (those flaps have
+        cosines between -0.5 and 0).
+    carve_margin, carve_min_edge, carve_reach : float
+        Free-space carving (paper: none; ``carve_margin = 0`` switches it off): every point was
+        measured along a ray from its camera (``view_dir``), so a triangle that such a ray crosses
+        in front of a point lying more than ``carve_margin`` median spacings behind the triangle's
+        plane is air, not surface, and is removed (``proposed`` only; see
+        `recon.surface.seen_through`). Only triangles with an edge longer than ``carve_min_edge``
+        spacings are tested, against the points within their circumradius plus ``carve_reach``
+        spacings of their centroid. It removes the flaps across armpits, crotch, curled fingers and
+        under the chin where the sensor looked through them, but not the cover of a hole that no
+        ray looked through (the paper's choice, ``max_edge_factor``). (chosen) Measured on the 21
+        shipped postures with the fold rule on (`paper` scans; mean bridging and postures under
+        0.5 % / mean spurious / mean area neither spurious nor bridging, m^2): oracle posture: off
+        0.366 %, 16/21 / 0.0340 / 1.4551; margin 1: 0.312 %, 20/21 / 0.0335 / 1.4548; 0.5:
+        0.272 %, 20/21 / 0.0329 / 1.4541; 0.25: 0.261 %, 20/21 / 0.0326 / 1.4533; at 0.5 reach 6
+        instead of 3 and min_edge 1.5 instead of 2 change nothing. Estimated posture: off 0.788 %,
+        6/21 / 0.0390 / 1.4087; margin 1: 0.614 %, 9/21; 0.5: 0.493 %, 10/21 / 0.0372 / 1.4061;
+        0.25: 0.474 %, 12/21 / 0.0369 / 1.4040 (more real surface goes, for little); at 0.5,
+        min_edge 3: 0.523 %, 4: 0.602 %; reach 0: 0.527 %, 1: 0.498 %, 3: 0.493 %: 1 is kept, as
+        it costs a third of 3 on a 2 mm scan (1.2 against 1.8 s, loaded machine).
+    carve_min_rays : int
+        Free-space carving: a triangle is air when at least this many points' rays cross it
+        (paper: none). 1 (chosen): most flaps are crossed by one ray only (within
+        ``carve_reach``); 2 gave oracle 0.339 % (18/21), estimated 0.651 % (9/21); 3: 0.355 %,
+        0.722 %. With 1 % outliers (``outlier_fraction=0.01``; standing, hands_on_hips, seated,
+        woman_standing, squat; oracle posture) carving with 1 ray still lowers bridging 1.43 ->
+        1.12 % and spurious 0.071 -> 0.067, for 0.2 % of the good area (1.3118 -> 1.3093 m^2);
+        with 2 rays 1.34 %, no area lost: raise it for clouds with many stray points.
     """
 
     seam_overlap: float = 0.6       # paper 3.3, radians
@@ -218,6 +272,12 @@ class SurfaceParams:
     open_joint_ends: bool = True    # paper silent
     workers: int = 2                # not a method parameter: speed only
     inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
+    fold_cos: float = 0.0           # paper: none (-1 = off); chosen, see above
+    fold_edge_factor: float = 4.0   # paper: none; chosen, spacings (= hull_edge_factor)
+    carve_margin: float = 0.5       # paper: none (0 = off); chosen, see above, spacings
+    carve_min_edge: float = 2.0     # chosen, spacings
+    carve_reach: float = 1.0        # chosen, spacings
+    carve_min_rays: int = 1         # chosen, see above
 
     def __post_init__(self):
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
@@ -226,6 +286,12 @@ class SurfaceParams:
         _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
         _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
         _check(int(self.workers) >= 1, "workers", self.workers, "an integer >= 1")
+        _check(-1 <= self.fold_cos <= 1, "fold_cos", self.fold_cos, "in [-1, 1] (-1 = off)")
+        _check(self.fold_edge_factor >= 0, "fold_edge_factor", self.fold_edge_factor, ">= 0 spacings")
+        _check(self.carve_margin >= 0, "carve_margin", self.carve_margin, ">= 0 spacings (0 = off)")
+        _check(self.carve_min_edge >= 0, "carve_min_edge", self.carve_min_edge, ">= 0 spacings")
+        _check(self.carve_reach >= 0, "carve_reach", self.carve_reach, ">= 0 spacings")
+        _check(int(self.carve_min_rays) >= 1, "carve_min_rays", self.carve_min_rays, "an integer >= 1")
         _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 

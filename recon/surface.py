@@ -15,15 +15,21 @@ holds the points beyond the column's end that no column triangle uses, plus the 
 column's boundary loop at that end (the overlap), and keeps the triangles inside that loop, so
 the cap closes the column along shared edges; overlapping triangles are not kept.
 
-Then `peel_boundary` removes long triangles from the section's boundary inwards (Delaunay's
-convex-hull slivers), `merge_sections` joins the sections through their shared points and
-removes the triangles made only of multi-section points (paper 3.3), and `orient_faces` turns
-every triangle outward.
+Where the surface folds back over its chart (curled fingers over the palm, at 10 mm one layer
+of points over another in the forearm's chart), Delaunay joins the two layers with triangles in
+the air; with ``fold_cos`` set, the long triangles that are flipped against their chart are
+removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's
+boundary inwards (Delaunay's convex-hull slivers), `merge_sections` joins the sections through
+their shared points and removes the triangles made only of multi-section points (paper 3.3),
+`seen_through` removes the triangles that a camera ray crossed in front of its point (free
+space, ``carve_margin``), and `orient_faces` turns every triangle outward.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
+from itertools import chain
 
 import numpy as np
 
@@ -175,6 +181,65 @@ def cap_chart(local: np.ndarray, shape: SectionShape, end: int):
     return np.column_stack([R * phi * np.cos(theta), R * phi * np.sin(theta)]), phi
 
 
+def chart_agreement(points: np.ndarray, faces: np.ndarray, uv: np.ndarray,
+                    direction: np.ndarray) -> np.ndarray:
+    """(k,) cosine between each triangle's 3D normal and its chart's projection direction, signed
+    by the triangle's orientation in the chart.
+
+    A chart maps the surface onto the model along ``direction`` (the column's radial direction,
+    a cap's direction from its centre). Where the surface is a graph over the chart (a limb, the
+    head), a triangle that is counter-clockwise in the chart has its 3D normal along that
+    direction: the value is near +1. Where the surface folds back over the chart (curled fingers,
+    a fold of skin), Delaunay joins points of the two layers: such a triangle stands on edge to
+    the chart (value near 0) or is flipped (negative).
+
+    Parameters
+    ----------
+    points : (m, 3) float
+        3D points, metres.
+    faces : (k, 3) int
+        Triangles over ``points`` (and over ``uv``: the same vertex order).
+    uv : (k, 3, 2) float
+        Chart coordinates of each triangle's vertices.
+    direction : (k, 3) float
+        Unit projection direction of the chart at each triangle (outward).
+    """
+    p = points[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    ln = np.sqrt(np.einsum("ij,ij->i", n, n))
+    a = uv[:, 1] - uv[:, 0]
+    b = uv[:, 2] - uv[:, 0]
+    ccw = np.sign(a[:, 0] * b[:, 1] - a[:, 1] * b[:, 0])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = ccw * np.einsum("ij,ij->i", n, direction) / ln
+    return np.where(ln > 0, cos, 0.0)
+
+
+def _column_direction(shape: SectionShape, local: np.ndarray) -> np.ndarray:
+    """(k, 3) unit outward normal (world frame) of the (elliptic) column at the points ``local``
+    (section frame)."""
+    a, b = shape.radii
+    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, np.zeros(len(local))])
+    d = d @ shape.frame
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
+def _cap_direction(shape: SectionShape, local: np.ndarray, end: int) -> np.ndarray:
+    """(k, 3) unit outward normal (world frame) of the (ellipsoidal) cap ``end`` at the points
+    ``local`` (section frame), in chart orientation: the start cap's chart is seen from inside
+    (its u, v turn like x, y while its outside is -h), so its direction is flipped."""
+    a, b = shape.radii
+    c = shape.caps[end]
+    e = -local[:, 2] if end == 0 else local[:, 2] - shape.length
+    d = np.column_stack([local[:, 0] / a ** 2, local[:, 1] / b ** 2, e / c ** 2])
+    if end == 0:
+        d[:, :2] *= -1  # outward is (x, y, -e); the chart turns the other way: -(outward)
+    d = d @ shape.frame
+    n = np.linalg.norm(d, axis=1, keepdims=True)
+    return d / np.where(n > 0, n, 1.0)
+
+
 def section_surface(points: np.ndarray, shape: SectionShape,
                     params: SurfaceParams = SurfaceParams(), spacing: float | None = None) -> np.ndarray:
     """Triangulate one section's points by Delaunay on its model surface.
@@ -207,6 +272,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     h_hi = L if shape.closed[1] else np.inf
 
     parts = []
+    agree = []  # per part, `chart_agreement` of its triangles
     # column chart
     sel = np.flatnonzero((h >= h_lo - band) & (h <= h_hi + band))
     if len(sel) >= 3:
@@ -221,7 +287,11 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             # a triangle around half the column or more is a hull artefact that would close an
             # open end into a fan (its copies make the seam region look like a closed loop)
             narrow = u.max(axis=1) - u.min(axis=1) < np.pi * R
-            parts.append(faces[own & narrow])
+            keep = own & narrow
+            faces = faces[keep]
+            parts.append(faces)
+            cen = local[faces].mean(axis=1)
+            agree.append(chart_agreement(points, faces, uv[simp[keep]], _column_direction(shape, cen)))
     # cap charts: each fills the column's end loop
     col_faces = parts[0] if parts else np.zeros((0, 3), dtype=np.int64)
     used = np.zeros(m, dtype=bool)
@@ -252,7 +322,16 @@ def section_surface(points: np.ndarray, shape: SectionShape,
         else:  # no column to join: the cap keeps what lies beyond the column's end
             hc = h[faces].mean(axis=1)
             own = hc < 0 if end == 0 else hc > L
-        parts.append(faces[own])
+        faces = faces[own]
+        parts.append(faces)
+        agree.append(chart_agreement(points, faces, uv_all[faces],
+                                     _cap_direction(shape, local[faces].mean(axis=1), end)))
+    if parts and params.fold_cos > -1:
+        # folds (see `chart_agreement`), after the caps were built on the whole column's end loop
+        allf = np.concatenate(parts)
+        folded = (np.concatenate(agree) < params.fold_cos) & (
+            max_edge_length(points, allf) > params.fold_edge_factor * spacing)
+        parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
     faces = faces[peel_boundary(faces, max_edge_length(points, faces) > hull_limit)]
     if params.max_edge_factor > 0 and len(faces):
@@ -386,6 +465,86 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
     return out
 
 
+def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
+                 margin: float = 0.5, min_edge: float = 2.0, reach: float = 1.0, min_rays: int = 1,
+                 tree=None, workers: int = 1, chunk: int = 200000) -> np.ndarray:
+    """(k,) bool: faces that the sensor saw through (free-space evidence).
+
+    Every point was measured along a ray from the point toward its camera (``view_dir``), and
+    that ray crossed only air: a triangle that it crosses, in front of the point, is not surface
+    (the space carving argument). A covered hole that no ray looked through is not affected.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        All measured points (meshed or not: each one is evidence).
+    faces : (k, 3) int
+    view_dir : (n, 3) or (3,) float
+        Unit direction from each point toward its camera (one for all: a parallel projection).
+    spacing : float
+        Median point spacing, metres.
+    margin : float
+        A point counts only when it lies more than ``margin`` spacings behind the triangle's plane
+        (noise, and the chords of a concave surface, lie within a fraction of a spacing).
+    min_edge : float
+        Only triangles with an edge longer than ``min_edge`` spacings are tested (a smaller one
+        lies within a spacing of its vertices' surface and cannot hide a point ``margin`` behind it).
+    reach : float
+        Points farther than the triangle's circumradius plus ``reach`` spacings from its centroid
+        are not tested.
+    min_rays : int
+        A triangle is air when at least this many points' rays cross it (2: a stray point
+        behind the surface, an outlier, does not open a hole by itself).
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+    workers : int
+        Threads of the neighbour query (speed only).
+    chunk : int
+        Pairs of (triangle, point) tested at a time (memory only).
+    """
+    from scipy.spatial import cKDTree
+
+    out = np.zeros(len(faces), dtype=bool)
+    if len(faces) == 0 or view_dir is None:
+        return out
+    cand = np.flatnonzero(max_edge_length(points, faces) > min_edge * spacing)
+    if len(cand) == 0:
+        return out
+    v = points[faces[cand]]
+    cen = v.mean(axis=1)
+    rad = np.sqrt(((v - cen[:, None]) ** 2).sum(axis=2).max(axis=1)) + reach * spacing
+    if tree is None:
+        tree = cKDTree(points)
+    near = tree.query_ball_point(cen, rad, workers=workers)
+    cnt = np.fromiter(map(len, near), dtype=np.int64, count=len(near))
+    tri = np.repeat(np.arange(len(cand)), cnt)
+    pts = np.fromiter(chain.from_iterable(near), dtype=np.int64, count=int(cnt.sum()))
+    d = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
+    e1 = v[:, 1] - v[:, 0]
+    e2 = v[:, 2] - v[:, 0]
+    n = np.cross(e1, e2)
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    hits = np.zeros(len(cand), dtype=np.int64)
+    for a in range(0, len(tri), chunk):  # Moller-Trumbore on the pairs, in chunks
+        t_, p_ = tri[a:a + chunk], pts[a:a + chunk]
+        tvec = points[p_] - v[t_, 0]
+        deep = np.abs(np.einsum("ij,ij->i", tvec, n[t_])) > margin * spacing  # also drops vertices
+        t_, p_, tvec = t_[deep], p_[deep], tvec[deep]
+        dd = d[p_]
+        pvec = np.cross(dd, e2[t_])
+        det = np.einsum("ij,ij->i", e1[t_], pvec)
+        ok = np.abs(det) > 1e-15
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        u = np.einsum("ij,ij->i", tvec, pvec) * inv
+        qvec = np.cross(tvec, e1[t_])
+        w = np.einsum("ij,ij->i", dd, qvec) * inv
+        t = np.einsum("ij,ij->i", e2[t_], qvec) * inv
+        h = ok & (u >= 0) & (w >= 0) & (u + w <= 1) & (t > 0)
+        hits += np.bincount(t_[h], minlength=len(cand))
+    out[cand[hits >= min_rays]] = True
+    return out
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -436,11 +595,14 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     fit : BodyFit
     params : SurfaceParams
     view_dir : (n, 3) or (3,) float, optional
-        Unit directions toward the sensor, for orientation.
+        Unit directions toward the sensor, for orientation and for ``params.carve_margin``
+        (`seen_through`; without them nothing is carved).
     drop_inner : bool
         Remove triangles made only of points in several sections (see `merge_sections`) and,
         with ``params.open_joint_ends``, leave open the ends where a child section continues
-        (both keep the inside of the body out of the surface).
+        (both keep the inside of the body out of the surface); also apply the fold rule
+        (``params.fold_cos``) and the free-space carving (``params.carve_margin``). False (the
+        simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
 
@@ -477,9 +639,12 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                 closed[end] = False
         jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
 
+    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles)
+    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0)
+
     def run(job):
         j, idx, shape = job
-        return j, idx[section_surface(points[idx], shape, params, spacing)]
+        return j, idx[section_surface(points[idx], shape, sp, spacing)]
 
     if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
@@ -492,6 +657,11 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
+        faces, sec = faces[keep], sec[keep]
+    if drop_inner and params.carve_margin > 0 and view_dir is not None:
+        keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
+                             params.carve_min_edge, params.carve_reach, params.carve_min_rays,
+                             workers=params.workers)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped

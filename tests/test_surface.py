@@ -144,3 +144,125 @@ def test_delaunay_of_degenerate_charts():
     assert _delaunay(np.zeros((5, 2))) is None                         # coincident
     square = _delaunay(np.array([[0.0, 0], [1, 0], [0, 1], [1, 1]]))
     assert square.shape == (2, 3)
+
+
+def skirt_points(step=0.01, R=0.05, L=0.4, gap=0.05, z0=0.15, z1=0.27, width=1.2, seed=0):
+    """A tube (radius ``R``) with a skirt over part of its circumference: a roof at ``z1`` out to
+    ``R + gap`` and a sheet hanging from it down to ``z0``, like curled fingers over the palm.
+    Jittered grid of ``step`` metres. Returns the points and the number of tube points (first)."""
+    rng = np.random.default_rng(seed)
+
+    def sheet(u0, u1, v0, v1):
+        u, v = np.meshgrid(np.arange(u0, u1, step), np.arange(v0, v1, step))
+        q = np.column_stack([u.ravel(), v.ravel()])
+        return q + rng.uniform(-0.3, 0.3, q.shape) * step
+
+    q = sheet(0, 2 * np.pi * R, 0, L)
+    tube = np.column_stack([R * np.cos(q[:, 0] / R), R * np.sin(q[:, 0] / R), q[:, 1]])
+    Rl = R + gap
+    q = sheet(-width / 2 * Rl, width / 2 * Rl, z0, z1)
+    lip = np.column_stack([Rl * np.cos(q[:, 0] / Rl), Rl * np.sin(q[:, 0] / Rl), q[:, 1]])
+    q = sheet(-width / 2 * R, width / 2 * R, R + step / 2, Rl)
+    t = q[:, 0] / R
+    roof = np.column_stack([q[:, 1] * np.cos(t), q[:, 1] * np.sin(t), np.full(len(q), z1)])
+    return np.vstack([tube, lip, roof]), len(tube)
+
+
+def _tilt():
+    """A rotation (3, 3) taking +z to a tilted axis, so that the section frame is not the identity."""
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.from_euler("xyz", [0.7, -0.4, 1.1]).as_matrix()
+
+
+def test_fold_rule_removes_the_triangles_across_a_fold():
+    """Under the skirt the tube's and the skirt's points interleave in the column chart: Delaunay
+    joins the two layers with triangles in the air (centroid between the tube and the skirt).
+    The fold rule removes them; switched off (fold_cos = -1), the paper's surface keeps them."""
+    P, nt = skirt_points()
+    Rm = _tilt()
+    shape = SectionShape("forearm_l", Rm @ [0, 0, 0], Rm @ [0, 0, 0.4], [0.05, 0.05], Rm @ [1, 0, 0],
+                         closed=(False, False))
+    Pw = P @ Rm.T
+
+    def air_area(faces):
+        c = P[faces].mean(axis=1)
+        r = np.hypot(c[:, 0], c[:, 1])
+        air = (r > 0.055) & (r < 0.095) & (c[:, 2] < 0.265)
+        return S.face_areas(P, faces[air]).sum()
+
+    paper = S.section_surface(Pw, shape, SurfaceParams(fold_cos=-1.0))
+    folded = S.section_surface(Pw, shape)
+    assert air_area(paper) > 0.05                    # m^2: hundreds of cm^2 across the fold
+    assert air_area(folded) < 0.05 * air_area(paper)
+    # the tube away from the skirt is untouched
+    far = lambda f: f[(P[f][:, :, 2].min(axis=1) > 0.3) | (P[f][:, :, 2].max(axis=1) < 0.12)]
+    assert S.face_keys(far(paper)).tolist() == S.face_keys(far(folded)).tolist()
+
+
+@pytest.mark.parametrize("closed", [(False, False), (True, True)])
+def test_fold_rule_keeps_convex_tubes_whole(closed):
+    """On a convex tube or capsule nothing folds: the rule removes no triangle."""
+    Rm = _tilt()
+    if closed[0]:
+        P = capsule_points() @ Rm.T
+        shape = SectionShape("thigh_l", Rm @ [0, 0, -0.2], Rm @ [0, 0, 0.2], [0.06, 0.06], Rm @ [1, 0, 0])
+    else:
+        P = cylinder_points() @ Rm.T
+        shape = SectionShape("upper_arm_l", [0, 0, 0], Rm @ [0, 0, 0.4], [0.05, 0.05], Rm @ [1, 0, 0],
+                             closed=closed)
+    on = S.section_surface(P, shape, SurfaceParams(fold_cos=0.0, fold_edge_factor=0.0))
+    off = S.section_surface(P, shape, SurfaceParams(fold_cos=-1.0))
+    assert len(on) > 1000 and on.tolist() == off.tolist()
+
+
+def test_chart_agreement_sign():
+    """+1 for a counter-clockwise chart triangle whose normal points along the chart's direction,
+    -1 when flipped, 0 for one standing on edge."""
+    P = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]])
+    f = np.array([[0, 1, 2], [0, 1, 2], [0, 1, 3]])
+    uv = np.array([[[0, 0], [1, 0], [0, 1]], [[0, 0], [0, 1], [1, 0]], [[0, 0], [1, 0], [0, 1]]], float)
+    d = np.array([[0, 0, 1.0]] * 3)
+    assert np.allclose(S.chart_agreement(P, f, uv, d), [1, -1, 0])
+
+
+def test_seen_through_removes_only_what_a_ray_crossed():
+    """A sheet of points seen from +z: a triangle floating 3 cm above points is air (their rays
+    cross it); the same triangle over a hole in the data (no point below) stays, as does a
+    triangle of the sheet itself, even with noise."""
+    rng = np.random.default_rng(0)
+    g = np.stack(np.meshgrid(np.arange(0, 0.3, 0.01), np.arange(0, 0.3, 0.01)), -1).reshape(-1, 2)
+    hole = (np.abs(g[:, 0] - 0.22) < 0.045) & (np.abs(g[:, 1] - 0.15) < 0.045)
+    g = g[~hole]
+    P = np.column_stack([g, rng.normal(0, 0.0005, len(g))])
+    extra = np.array([[0.05, 0.10, 0.03], [0.10, 0.10, 0.03], [0.07, 0.15, 0.03],     # over points
+                      [0.20, 0.13, 0.03], [0.24, 0.13, 0.03], [0.22, 0.17, 0.03]])    # over the hole
+    P = np.vstack([P, extra])
+    n = len(P)
+    in_sheet = np.array([np.argmin(np.linalg.norm(g - [0.1, 0.1], axis=1)),
+                         np.argmin(np.linalg.norm(g - [0.13, 0.1], axis=1)),
+                         np.argmin(np.linalg.norm(g - [0.1, 0.13], axis=1))])
+    faces = np.array([[n - 6, n - 5, n - 4], [n - 3, n - 2, n - 1], in_sheet])
+    vd = np.tile([0.0, 0.0, 1.0], (n, 1))
+    got = S.seen_through(P, faces, vd, 0.01, margin=0.5, min_edge=0.0)
+    assert got.tolist() == [True, False, False]
+    # seen from the side instead, no ray crosses the floating triangle
+    side = S.seen_through(P, faces, np.tile([1.0, 0, 0], (n, 1)), 0.01, margin=0.5, min_edge=0.0)
+    assert not side.any()
+
+
+def test_carving_keeps_a_convex_capsule_whole():
+    """Points seen from outside a convex body: no ray crosses its surface, nothing is carved."""
+    P = capsule_points()
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": shape}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:, SECTIONS.index("thigh_l")] = True
+    normal = P - np.column_stack([np.zeros((len(P), 2)), np.clip(P[:, 2], -0.2, 0.2)])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    vd = normal + [0.4, -0.3, 0.5]                   # cameras off the normal, on the outside
+    vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    vd = np.where(np.einsum("ij,ij->i", vd, normal)[:, None] > 0.3, vd, normal)
+    on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.1, carve_min_edge=0.0), vd)[0]
+    off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.0), vd)[0]
+    assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
