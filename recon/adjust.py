@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bodymodel import LIMBS, StandardBody
-from .geometry import cross, perp, turn_between, unit
+from .geometry import cross, fibonacci_sphere, perp, turn_between, unit
 from .match import Pose
 from .model import SectionShape
 from .params import FitParams
@@ -361,3 +361,98 @@ def _move_shoulders(out: dict, secs: dict, body: StandardBody, move: np.ndarray)
 
 def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
     return s.replace(start=start, end=start + length * unit(d))
+
+
+def _doubtful(cover: float, rms: float, params: FitParams) -> bool:
+    """The arm check of `recon.posture` (step 7): too little covered, or little covered and fitted badly."""
+    return cover < params.fit_doubt_min_cover or (cover < params.fit_doubt_cover and rms > params.fit_doubt_rms)
+
+
+def research_forearms(points, secs: dict, resid: dict, counts: dict, body: StandardBody, params: FitParams,
+                      cover_of) -> tuple[dict, dict, dict, set]:
+    """A forearm whose fit the arm check doubts, searched again on the points from its elbow.
+
+    On a coarse volume a forearm resting against the body (across the chest, beside wide hips)
+    merges with the trunk, and the volume search can send it into flesh the torso's column does
+    not hold (the hips, the belly): its fit then covers its surface poorly and leaves its own
+    points. The points tell the limb apart (`_search_forearm`), from two elbows: where the fine
+    adjustment left it, and the model's upper-arm length along the fitted upper arm (the doubted
+    forearm may have dragged the elbow along). The result the arm check no longer doubts, and
+    that covers more of its surface, replaces the doubted forearm.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    secs, resid, counts : dict
+        The fine adjustment's sections, residuals (m) and point counts by name.
+    cover_of : callable
+        ``cover_of(points, secs) -> {name: cover}``, the check's cover.
+
+    Returns
+    -------
+    secs, resid, counts : dict
+        With the re-searched forearms replaced.
+    replaced : set of str
+        Their names: the coarse volume score no longer speaks for them.
+    """
+    covers = cover_of(points, secs)
+    replaced = set()
+    for prox, dist, root, *_ in LIMBS:
+        if not root.startswith("shoulder") or dist not in secs or prox not in secs:
+            continue
+        if not _doubtful(covers.get(dist, 0.0), resid.get(dist, np.inf), params):
+            continue
+        p = secs[prox]
+        best = None
+        for upper in (p, p.replace(end=p.start + body.section_length(prox) * p.axis)):
+            trial = {**secs, prox: upper}
+            found = _search_forearm(points, trial, prox, dist, body, params)
+            if found is None:
+                continue
+            shp, rms, n = found
+            cov = cover_of(points, {**trial, dist: shp}).get(dist, 0.0)
+            if not _doubtful(cov, rms, params) and (best is None or cov > best[0]):
+                best = (cov, {**trial, dist: shp}, rms, n)
+        if best is not None:
+            secs, resid, counts = best[1], {**resid, dist: best[2]}, {**counts, dist: best[3]}
+            replaced.add(dist)
+    return secs, resid, counts, replaced
+
+
+def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams):
+    """The forearm ``dist`` searched on the points from the end of ``secs[prox]``: (shape, rms, points)
+    or None.
+
+    Every direction within the elbow's bend (`match_max_bend` from the upper arm) is scored by the
+    points on a forearm's surface around it (within 0.6 radii of it, between 0.15 and 1 forearm
+    length) that no other section explains (farther than half `fit_near_distance` from their
+    surfaces), less a quarter of the best score per axis sample inside another section (a forearm
+    is not inside the trunk); the best is fitted by `fit_section` on the points it is nearest to.
+    """
+    p, q = secs[prox], secs[dist]
+    e, L, r = p.end, body.section_length(dist), float(q.radii.mean())
+    others = [v for k, v in secs.items() if k != dist]
+    X = points[np.linalg.norm(points - e, axis=1) < L + 0.05]
+    if not len(X):
+        return None
+    free = X[np.min(np.stack([o.distance(X) for o in others], 1), 1) > 0.5 * params.fit_near_distance]
+    dirs = _SEARCH_DIRS[_SEARCH_DIRS @ p.axis >= np.cos(np.radians(params.match_max_bend))]
+    rel = free - e
+    t = dirs @ rel.T                                                     # (k, m)
+    rad = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
+    score = ((t > 0.15 * L) & (t < L) & (np.abs(rad - r) < 0.6 * r)).sum(1).astype(float)
+    samples = (e + (np.linspace(0.25, 1.0, 4) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
+    inside = sum((o.coords(samples)[0] < 0).reshape(len(dirs), -1).sum(1) for o in others)
+    score = score - 0.25 * score.max() * inside
+    start = q.replace(start=e, end=e + L * dirs[int(np.argmax(score))])
+    names, k = _assign(points, {**secs, dist: start}, params.fit_near_distance)
+    own = points[k == names.index(dist)]
+    if len(own) < params.fit_min_points:
+        return None
+    shp, rms = fit_section(own, start, loss=params.fit_loss, iterations=2,
+                           end_threshold=params.fit_end_threshold, max_shift=params.fit_max_shift)
+    return shp.replace(start=e), rms, len(own)
+
+
+#: Directions searched for a doubted forearm (`research_forearms`).
+_SEARCH_DIRS = fibonacci_sphere(800)

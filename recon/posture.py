@@ -87,7 +87,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
-   warning, rather than placed wrongly. A section in empty voxels whose seen surface fits it (shell
+   warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
+   points from its elbow (`recon.adjust.research_forearms`: a forearm against the body merges with
+   the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
+   when the check no longer doubts it. A section in empty voxels whose seen surface fits it (shell
    score at least `match_min_shell_score`) is kept, and so is a leg section whose fitted surface the
    points cover (`fit_leg_seen_cover`, `fit_leg_seen_rms`: a thigh raised level, seen from the
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
@@ -120,7 +123,7 @@ import numpy as np
 from . import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from .cloud import check_points
-from .adjust import anchor_on_head_top, fine_adjust, fit_section
+from .adjust import anchor_on_head_top, fine_adjust, fit_section, research_forearms
 from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ratio, split_knees, split_torso,
                      swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction
@@ -196,11 +199,13 @@ def _finish(work, pose: Pose, params: FitParams):
     `ReconError` when the result is not a body (too few sections, too few points explained)."""
     secs, resid, counts = fine_adjust(work, pose, params)
     secs = anchor_on_head_top(secs, pose.body, params)
+    secs, resid, counts, researched = research_forearms(
+        work, secs, resid, counts, pose.body, params, lambda pts, s: _section_cover(pts, s, params.fit_coverage_distance))
 
     # front and back from the data: relabel left/right when the provisional front was the back
     sign = front_sign(work, secs, pose.R)
     coarse_secs = dict(pose.sections)
-    coarse_scores = dict(pose.section_scores or {})
+    coarse_scores = {k: v for k, v in (pose.section_scores or {}).items() if k not in researched}
     shell_scores = dict(pose.shell_scores or {})
     if sign < 0:
         secs = {swap_sides(k): v.replace(name=swap_sides(k)) for k, v in secs.items()}
