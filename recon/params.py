@@ -322,6 +322,12 @@ class FitParams:
     fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
+    match_head_max_side: float = 55.0      # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
+                                           # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees
+                                           # sideways (its range of lateral flexion), 10 more for the chest's own error;
+                                           # front and back it keeps the 70 degree cone. Measured: a child's raised arm
+                                           # beside the head took the head at 69 degrees (child_arms_raised k2, k3 at 10 mm:
+                                           # 7.8 / 8.2 cm median -> 2.7 / 2.8); 45 let a_pose k1 pick a wrong size (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
                                            # torso (fit_max_shift), the chest stretching, m. Measured on the library
