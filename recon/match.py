@@ -404,8 +404,9 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
                 shell_scores[prox], shell_scores[dist] = new
         secs[prox], secs[dist] = p, q
         fit_scores[prox], fit_scores[dist] = sc_pq
-        scorer.claim(p)
-        scorer.claim(q)
+        m = params.match_leg_claim_margin if kind_of(prox) == "thigh" else 0.0
+        scorer.claim(p.replace(radii=p.radii + m))
+        scorer.claim(q.replace(radii=q.radii + m))
         total += s
     return Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores,
                  shell_scores=shell_scores)

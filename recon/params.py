@@ -248,6 +248,11 @@ class FitParams:
     match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
     match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
     match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_leg_claim_margin: float = 0.02   # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond
+                                           # their model radii, m: a real thigh is wider than the standard column, and the
+                                           # contour voxels just outside it drew a hanging forearm onto the thigh's front
+                                           # (arms_close k3 at 10 mm: wrist 11.1 -> 4.0 cm; 20 mm: arms_close k1-k2 fa_r
+                                           # 7.8 / 11.3 -> 4.0 / 3.2 cm; chosen, as `match_claim_margin`)
     match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
     match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,

@@ -31,7 +31,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    body; a thigh rising above the torso's horizontal by more than `match_thigh_max_rise` only by
    flexing front or back, a shin never above its thigh), and the best chain is refined by
    Nelder-Mead. Voxels inside sections already placed weigh
-   `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. A limb
+   `match_claimed_weight` (the torso's to `match_claim_margin` beyond its surface, the legs' to
+   `match_leg_claim_margin`: a hanging hand lies against the thigh, whose real surface is wider than
+   the model's), so a limb is not fitted into the torso or folded back over itself. A limb
    seen from one side only holds no inside voxels (a seated person's thighs under the 2 mm scanner,
    seen from above: a thigh on its bone scores -0.8 on the volume): when a chain's root section
    lands in empty voxels (below `match_min_section_score`) of a fine volume (voxels at most
