@@ -11,6 +11,7 @@ import numpy as np
 
 from .bodymodel import LIMBS, StandardBody
 from .geometry import cross, perp, turn_between, unit
+from .joints import ELBOW_STRAIGHT_DEG as _ELBOW_STRAIGHT_DEG
 from .match import Pose
 from .model import SectionShape
 from .params import FitParams
@@ -319,11 +320,6 @@ def anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dic
 #: The arm chains' sections.
 _ARM_SECTIONS = frozenset(n for prox, dist, root, *_ in LIMBS if root.startswith("shoulder") for n in (prox, dist))
 
-#: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder,
-#: not where the axes meet: two axes this close to parallel meet poorly (1 cm across them moves the
-#: meeting point 1 / tan(35 deg) = 1.4 cm along them; fitted straight arms of the library, bent 11
-#: degrees, came out bent up to 28 degrees; the bent arms are 45 degrees or more; chosen).
-_ELBOW_STRAIGHT_DEG = 35.0
 
 #: The shoulder joint rises with the arm raised above the horizontal (the clavicle elevates with
 #: the scapula, scapulohumeral rhythm): by this fraction of stature times the upper arm's cosine

@@ -71,6 +71,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
    bend of the fitted axes (`recon.joints.knee_between`: where two nearly straight axes meet is ill-defined);
+   likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
+   shoulder to wrist measures more than `fit_arm_size_tolerance` off the model's arm (the body's size
+   was misjudged: `recon.joints.elbow_between`);
    the chest's top end is aimed at the fitted head (within 25 degrees of the waist's axis; the arms
    beside it fix the chest's own direction poorly), then centred between the sides of the neck
    (`recon.adjust._neck_shift`), and the shoulders turn with it. The torso, head and legs slide along the torso
@@ -257,9 +260,10 @@ def _finish(work, pose: Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
-    joints = place_joints(fitted, pose.body, back, work)
+    joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
     fitted = joint_caps(split_knees(split_torso(work, fitted), joints, pose.body))
-    coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work))
+    coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
+                                                                arm_tolerance=params.fit_arm_size_tolerance))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
