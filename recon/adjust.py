@@ -234,13 +234,19 @@ def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -
     out["head"] = _keep_dir(new["head"], head_dir, chest.end, new["head"].length)
     # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
     # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
-    # the other), then each is taken onto its adjusted upper arm's axis
+    # the other), then each is taken onto its adjusted upper arm's axis; likewise the hips ride with
+    # the waist (the pelvis): moved and turned with it, then taken onto the thighs' axes (a squat
+    # matched upright, 10 cm forward, kept its hips 10 cm forward on the level thighs while the
+    # waist moved back onto its points: knee 11.3 -> 7.2 cm)
     turn = turn_between(old["chest"].axis, chest.axis)
+    turn_w = turn_between(old["waist"].axis, waist.axis)
     roots = {}
     for prox, *_ in LIMBS:
         r0 = old[prox].start
         if prox.startswith("upper_arm"):
             r0 = chest.start + turn @ (r0 - old["chest"].start)
+        else:
+            r0 = waist.start + turn_w @ (r0 - old["waist"].start)
         roots[prox] = new[prox].start + new[prox].axis * ((r0 - new[prox].start) @ new[prox].axis)
     for prox, dist, root_name, _, _ in LIMBS:
         p, q = new[prox], new[dist]

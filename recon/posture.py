@@ -76,7 +76,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    was misjudged: `recon.joints.elbow_between`);
    the chest's top end is aimed at the fitted head (within 25 degrees of the waist's axis; the arms
    beside it fix the chest's own direction poorly), then centred between the sides of the neck
-   (`recon.adjust._neck_shift`), and the shoulders turn with it. The torso, head and legs slide along the torso
+   (`recon.adjust._neck_shift`), and the shoulders turn with it; the hips ride with the waist
+   (moved and turned with it, then taken onto the thighs' axes). The torso, head and legs slide along the torso
    axis (at most `fit_max_shift`) so that the neck lies a standard head length below the detected
    crown (a leg section turned more than 45 degrees from that axis, a thigh held level, slides
    along its own axis only: it stays on its points), and the neck and head follow the crown up to

@@ -544,16 +544,17 @@ def library_table():
 
 def test_library_fits_are_never_silent_nonsense(library_table):
     """No WRONG fit (median > 10 cm or a joint > 30 cm with no error raised), and the issue's targets
-    met on at least 77 of the 84 runs (measured at this commit: 80)."""
+    met on at least 77 of the 84 runs (measured at this commit: 79)."""
     outcomes = {(r["body"], r["condition"]): r["outcome"] for r in library_table}
     assert not [k for k, o in outcomes.items() if o == "WRONG"]
     assert sum(o in ("pass", "part") for o in outcomes.values()) >= 77
 
 
-@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 4 of 84 runs miss them: "
-                          "child_arms_raised k1_rot137 (median 6.6 / max 11.0 cm, shoulder_r); "
-                          "seated k1_rot137 (median 5.1 / max 14.2 cm, hip_r); "
-                          "squat k2 (median 2.3 / max 11.3 cm, knee_r); "
+@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 5 of 84 runs miss them: "
+                          "child_arms_raised k1_rot137 (median 6.4 / max 11.1 cm, shoulder_r); "
+                          "heavy_a_pose k3 (median 4.1 / max 7.3 cm, head; 4 arm sections unfitted); "
+                          "seated k1_rot137 (median 5.0 / max 13.1 cm, hip_r); "
+                          "squat k2 (median 2.3 / max 7.2 cm, knee_r; thigh 23 degrees off); "
                           "tall_walking k2 (refused)")
 def test_library_fits_meet_the_issue_targets(library_table):
     assert all(r["outcome"] in ("pass", "part") for r in library_table)
