@@ -11,6 +11,7 @@ import numpy as np
 
 from .bodymodel import LIMBS, StandardBody
 from .geometry import cross, fibonacci_sphere, perp, turn_between, unit
+from .joints import ELBOW_STRAIGHT_DEG as _ELBOW_STRAIGHT_DEG
 from .match import Pose
 from .model import SectionShape
 from .params import FitParams
@@ -233,13 +234,19 @@ def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -
     out["head"] = _keep_dir(new["head"], head_dir, chest.end, new["head"].length)
     # the shoulders ride with the chest: the coarse shoulder joints turn with it from its coarse
     # direction to its final one (a coarse chest tilted sideways raises one shoulder and lowers
-    # the other), then each is taken onto its adjusted upper arm's axis
+    # the other), then each is taken onto its adjusted upper arm's axis; likewise the hips ride with
+    # the waist (the pelvis): moved and turned with it, then taken onto the thighs' axes (a squat
+    # matched upright, 10 cm forward, kept its hips 10 cm forward on the level thighs while the
+    # waist moved back onto its points: knee 11.3 -> 7.2 cm)
     turn = turn_between(old["chest"].axis, chest.axis)
+    turn_w = turn_between(old["waist"].axis, waist.axis)
     roots = {}
     for prox, *_ in LIMBS:
         r0 = old[prox].start
         if prox.startswith("upper_arm"):
             r0 = chest.start + turn @ (r0 - old["chest"].start)
+        else:
+            r0 = waist.start + turn_w @ (r0 - old["waist"].start)
         roots[prox] = new[prox].start + new[prox].axis * ((r0 - new[prox].start) @ new[prox].axis)
     for prox, dist, root_name, _, _ in LIMBS:
         p, q = new[prox], new[dist]
@@ -319,11 +326,6 @@ def anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dic
 #: The arm chains' sections.
 _ARM_SECTIONS = frozenset(n for prox, dist, root, *_ in LIMBS if root.startswith("shoulder") for n in (prox, dist))
 
-#: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder,
-#: not where the axes meet: two axes this close to parallel meet poorly (1 cm across them moves the
-#: meeting point 1 / tan(35 deg) = 1.4 cm along them; fitted straight arms of the library, bent 11
-#: degrees, came out bent up to 28 degrees; the bent arms are 45 degrees or more; chosen).
-_ELBOW_STRAIGHT_DEG = 35.0
 
 #: The shoulder joint rises with the arm raised above the horizontal (the clavicle elevates with
 #: the scapula, scapulohumeral rhythm): by this fraction of stature times the upper arm's cosine

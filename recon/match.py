@@ -303,10 +303,12 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
     return tangent_dir(d1, *res.x[:2]), tangent_dir(d2, *res.x[2:]), -res.fun
 
 
-def _search_cone(scorer, start, axis, length, radii, frame_x, max_angle, n=120):
-    """Best direction within ``max_angle`` degrees of ``axis`` for a column from ``start``."""
+def _search_cone(scorer, start, axis, length, radii, frame_x, max_angle, n=120, max_side=90.0):
+    """Best direction within ``max_angle`` degrees of ``axis`` for a column from ``start``, and
+    leaning at most ``max_side`` degrees from ``axis`` towards ``frame_x`` (sideways)."""
     dirs = fibonacci_sphere(n * 4)
-    dirs = dirs[dirs @ axis >= np.cos(np.radians(max_angle))]
+    side = unit(frame_x - axis * (frame_x @ axis))
+    dirs = dirs[(dirs @ axis >= np.cos(np.radians(max_angle))) & (np.abs(dirs @ side) <= np.sin(np.radians(max_side)))]
     dirs = np.vstack([axis, dirs])
     fx = frame_x - dirs * (dirs @ frame_x)[:, None]
     fx = unit(fx)
@@ -361,7 +363,8 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
     for s in (waist, chest):
         scorer.claim(s.replace(radii=s.radii + params.match_claim_margin))
     Lh = body.section_length("head")
-    dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70)
+    dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70,
+                          max_side=params.match_head_max_side)
     secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
     if anchor and body.stature >= params.fit_anchor_min_stature:
         # the volume pins the torso poorly along its axis: the crown does (adult head length)
@@ -401,8 +404,9 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
                 shell_scores[prox], shell_scores[dist] = new
         secs[prox], secs[dist] = p, q
         fit_scores[prox], fit_scores[dist] = sc_pq
-        scorer.claim(p)
-        scorer.claim(q)
+        m = params.match_leg_claim_margin if kind_of(prox) == "thigh" else 0.0
+        scorer.claim(p.replace(radii=p.radii + m))
+        scorer.claim(q.replace(radii=q.radii + m))
         total += s
     return Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores,
                  shell_scores=shell_scores)

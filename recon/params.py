@@ -314,6 +314,11 @@ class FitParams:
     match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
     match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
     match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+    match_leg_claim_margin: float = 0.02   # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond
+                                           # their model radii, m: a real thigh is wider than the standard column, and the
+                                           # contour voxels just outside it drew a hanging forearm onto the thigh's front
+                                           # (arms_close k3 at 10 mm: wrist 11.1 -> 4.0 cm; 20 mm: arms_close k1-k2 fa_r
+                                           # 7.8 / 11.3 -> 4.0 / 3.2 cm; chosen, as `match_claim_margin`)
     match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
     match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
     match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
@@ -388,11 +393,23 @@ class FitParams:
     fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
+    match_head_max_side: float = 55.0      # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
+                                           # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees
+                                           # sideways (its range of lateral flexion), 10 more for the chest's own error;
+                                           # front and back it keeps the 70 degree cone. Measured: a child's raised arm
+                                           # beside the head took the head at 69 degrees (child_arms_raised k2, k3 at 10 mm:
+                                           # 7.8 / 8.2 cm median -> 2.7 / 2.8); 45 let a_pose k1 pick a wrong size (chosen)
     fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
     fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
                                            # torso (fit_max_shift), the chest stretching, m. Measured on the library
                                            # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
                                            # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
+    fit_arm_size_tolerance: float = 0.1    # 2.3(2): a nearly straight arm whose shoulder-to-wrist (wrist from the seen
+                                           # fingertips) differs from the model's arm by more than this ratio has its elbow
+                                           # placed at the model's proportion of the measured arm, not the model's upper-arm
+                                           # length from the shoulder: the body's size was misjudged. Measured on the library
+                                           # (k = 1, 3, 10 mm): elbow error mean 2.5 -> 2.3 cm, median 1.9 -> 1.9, a child
+                                           # matched at 1.20 m 6.9 -> under 4.8; 0 (always) gave median 2.2 (chosen)
     fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
     fit_seed: int = 0                      # random subsampling seed
 

@@ -21,7 +21,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    torso with one tilted onto an arm, its wide axis turned front-back; the points tell them apart.
    The torso's radii are then measured on the points.
 3. Sections from the chest outwards: chest (about the chest joint, within 20 degrees of the torso),
-   head (about the neck), then thighs and lower legs, then upper arms and forearms (the paper does
+   head (about the neck, within 70 degrees of the chest's axis but at most `match_head_max_side`
+   sideways: the neck's lateral flexion; a raised arm beside the head otherwise takes it), then thighs and lower legs, then upper arms and forearms (the paper does
    the arms before the legs; we place the legs first because hanging hands reach down beside the
    thighs). Where the paper does not say how a limb's direction is searched, each limb chain is
    searched on a sphere of `match_directions` directions for its proximal section, the best
@@ -30,7 +31,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    body; a thigh rising above the torso's horizontal by more than `match_thigh_max_rise` only by
    flexing front or back, a shin never above its thigh), and the best chain is refined by
    Nelder-Mead. Voxels inside sections already placed weigh
-   `match_claimed_weight`, so a limb is not fitted into the torso or folded back over itself. A limb
+   `match_claimed_weight` (the torso's to `match_claim_margin` beyond its surface, the legs' to
+   `match_leg_claim_margin`: a hanging hand lies against the thigh, whose real surface is wider than
+   the model's), so a limb is not fitted into the torso or folded back over itself. A limb
    seen from one side only holds no inside voxels (a seated person's thighs under the 2 mm scanner,
    seen from above: a thigh on its bone scores -0.8 on the volume): when a chain's root section
    lands in empty voxels (below `match_min_section_score`) of a fine volume (voxels at most
@@ -68,9 +71,13 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
    bend of the fitted axes (`recon.joints.knee_between`: where two nearly straight axes meet is ill-defined);
+   likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
+   shoulder to wrist measures more than `fit_arm_size_tolerance` off the model's arm (the body's size
+   was misjudged: `recon.joints.elbow_between`);
    the chest's top end is aimed at the fitted head (within 25 degrees of the waist's axis; the arms
    beside it fix the chest's own direction poorly), then centred between the sides of the neck
-   (`recon.adjust._neck_shift`), and the shoulders turn with it. The torso, head and legs slide along the torso
+   (`recon.adjust._neck_shift`), and the shoulders turn with it; the hips ride with the waist
+   (moved and turned with it, then taken onto the thighs' axes). The torso, head and legs slide along the torso
    axis (at most `fit_max_shift`) so that the neck lies a standard head length below the detected
    crown (a leg section turned more than 45 degrees from that axis, a thigh held level, slides
    along its own axis only: it stays on its points), and the neck and head follow the crown up to
@@ -98,7 +105,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the shoulder of a misplaced torso and is listed, and so is a thigh pointing up within 60 degrees
    of the torso's axis (a hip flexed past its active range). A fit whose sections (all placed ones) explain fewer than
    `fit_min_coverage` of the points within `fit_coverage_distance`, or with more than
-   `fit_max_unfitted` sections unfitted, failed: the fit is made again from the next torso
+   `fit_max_unfitted` sections unfitted, or whose head is unfitted although the scan shows one above
+   the neck (`_head_seen`: the head, whose crown pins the torso along its axis, was not found, so the
+   torso was misplaced), failed: the fit is made again from the next torso
    candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
    when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
    silently as a fit.
@@ -235,6 +244,11 @@ def _finish(work, pose: Pose, params: FitParams):
     if "waist" in unfitted or "chest" in unfitted or len(unfitted) > params.fit_max_unfitted:
         raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
                          f"body sections could be fitted")
+    if "head" in unfitted and _head_seen(work, secs["chest"], pose.body, params.fit_min_points):
+        # the head is in the scan (points above the neck, near the torso's axis) but was not placed:
+        # the torso, which the head (the crown) pins along its axis, was misplaced
+        raise ReconError("the cloud does not look like a human body, or its posture was not found: the "
+                         "scan shows a head above the torso, but the head could not be fitted")
     _check_plausible(secs, pose.body)
     fitted = {k: v for k, v in secs.items() if k not in unfitted}
     for prox, dist, *_ in LIMBS:
@@ -252,12 +266,27 @@ def _finish(work, pose: Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
-    joints = place_joints(fitted, pose.body, back, work)
+    joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
     fitted = joint_caps(split_knees(split_torso(work, fitted), joints, pose.body))
-    coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work))
+    coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
+                                                                arm_tolerance=params.fit_arm_size_tolerance))
     return BodyFit(sections=fitted, joints=joints,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
+
+
+def _head_seen(points, chest, body: StandardBody, min_points: int) -> bool:
+    """Whether the scan shows a head above the fitted ``chest`` (its top end is the neck): at least
+    ``min_points`` points within a head length above the neck along the chest's axis and within the
+    head's width (1.5 standard head radii) of that axis. A head cut from the scan leaves none; a head
+    in the scan that the fit could not place means the torso was misplaced along its axis (a
+    child's raised arms beside the head pushed the torso 10 cm up at 20 mm, and the head's column
+    found only air above the neck)."""
+    rel = points - chest.end
+    h = rel @ chest.axis
+    rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
+    near = (h > 0) & (h < body.section_length("head")) & (rho2 < (1.5 * body.radii("head").max()) ** 2)
+    return int(near.sum()) >= min_points
 
 
 def _arm_behind(d: np.ndarray, R: np.ndarray, back: np.ndarray) -> bool:
