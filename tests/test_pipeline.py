@@ -251,11 +251,13 @@ def _reconstruct_and_score(s, truth, fit, method, over=None):
     }
 
 
-#: Known failures, kept visible: (posture, reason).
-KNOWN = {"heavy_standing": "the arm touches the chest below the shoulder: a few arm points lose the arm "
-                           "in the refinement (the waist claims them too) and are meshed with the chest; "
-                           "bridging with max_edge_factor=4 0.63 % (> 0.5 %), default 0.60 % "
-                           "(armpit 0.36 %)"}
+#: Known failures, kept visible: (posture, reason). None at this commit (heavy_standing's armpit
+#: bridging, 0.60 %, went with the fold and carving rules of `recon.surface`).
+KNOWN: dict = {}
+
+#: Postures whose bridging (oracle posture) is above the issue's 0.5 %, with their ceiling: a 22 cm2
+#: cover of the armpit the sensor never saw, its centroid 5.1 mm out (measured 0.66 %).
+BRIDGING_ABOVE = {"woman_standing": 0.008}
 
 
 #: Postures below the issue's 95 % "truth among labels", with their floor (measured 0.938, 0.930).
@@ -279,18 +281,18 @@ def test_shipped_posture_against_ground_truth(name, scored):
     assert prop["spurious"] < simple["spurious"]
     # no surface across armpits and crotch, little in the air anywhere (hands, chin)
     assert prop["armpit_crotch_bridging"] < 0.005
-    assert prop["bridging"] < 0.01 and prop["bridging"] < simple["bridging"]
+    assert prop["bridging"] < BRIDGING_ABOVE.get(name, 0.005) and prop["bridging"] < simple["bridging"]
     assert limited["bridging"] < 0.005
 
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_shipped_postures_on_average(scored):
     """Means over every shipped posture (measured: truth among labels 0.959, 1/m-scored 0.945,
-    bridging 0.47 %)."""
+    bridging 0.28 %)."""
     rows = [_score(n, scored)["proposed"] for n in _shipped()]
     assert np.mean([r["accuracy"]["section_accuracy_any"] for r in rows]) >= 0.955
     assert np.mean([r["accuracy"]["section_accuracy"] for r in rows]) >= 0.94
-    assert np.mean([r["bridging"] for r in rows]) < 0.005
+    assert np.mean([r["bridging"] for r in rows]) < 0.0035
 
 
 # -- the shipped postures, the whole pipeline as users run it (posture estimated) ----------------
@@ -318,19 +320,19 @@ def estimated():
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_estimated_posture_on_the_library(estimated):
     """Regression level of the whole pipeline on every shipped posture (measured at this commit:
-    truth among labels mean 0.940, 1/m-scored mean 0.927, min 0.881; bridging mean 1.01 %)."""
+    truth among labels mean 0.944, 1/m-scored mean 0.931, min 0.892; bridging mean 0.48 %)."""
     prop = [r["proposed"] for r in estimated.values()]
-    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.93
-    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.86
-    assert np.mean([r["bridging"] for r in prop]) < 0.014
+    assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.935
+    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.87
+    assert np.mean([r["bridging"] for r in prop]) < 0.007
     for name, r in estimated.items():   # the paper's claim, posture by posture
         assert r["proposed"]["spurious"] < r["simple"]["spurious"], name
 
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 @pytest.mark.xfail(strict=True, reason="issue 5's targets with the estimated posture are not reached: "
-                                       "truth among labels >= 95 % on 7/21 postures (min 0.895), "
-                                       "bridging < 0.5 % on 5/21 (max 3.48 %)")
+                                       "truth among labels >= 95 % on 5/21 postures (min 0.907), "
+                                       "bridging < 0.5 % on 11/21 (max 0.89 %)")
 def test_estimated_posture_meets_the_issue_targets(estimated):
     for name, r in estimated.items():
         assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name
