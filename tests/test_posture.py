@@ -622,3 +622,55 @@ def test_library_fits_are_never_silent_nonsense(library_table):
                           "tall_walking k2 (refused)")
 def test_library_fits_meet_the_issue_targets(library_table):
     assert all(r["outcome"] in ("pass", "part") for r in library_table)
+
+
+def _crotch_scene(crotch_z=0.80, spacing=0.01):
+    """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
+    and a fit whose thighs start 15 cm above the crotch."""
+    x = np.array([1.0, 0, 0])
+    ang = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    z = np.arange(crotch_z, 1.3, spacing)
+    A, Z = np.meshgrid(ang, z)
+    torso = np.column_stack([0.16 * np.cos(A.ravel()), 0.11 * np.sin(A.ravel()), Z.ravel()])
+    gx, gy = np.meshgrid(np.arange(-0.16, 0.16, spacing), np.arange(-0.11, 0.11, spacing))
+    inside = (gx / 0.16) ** 2 + (gy / 0.11) ** 2 < 1
+    bottom = np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), crotch_z)])
+    legs = []
+    for cx in (0.1, -0.1):
+        a2, z2 = np.meshgrid(ang, np.arange(0.0, crotch_z + 0.05, spacing))
+        legs.append(np.column_stack([cx + 0.07 * np.cos(a2.ravel()), 0.07 * np.sin(a2.ravel()), z2.ravel()]))
+    points = np.vstack([torso, bottom] + legs)
+    top = crotch_z + 0.15
+    secs = {"waist": SectionShape("waist", [0, 0, top], [0, 0, 1.2], [0.16, 0.11], x),
+            "thigh_l": SectionShape("thigh_l", [0.1, 0, top], [0.1, 0, top - 0.45], [0.07, 0.07], x),
+            "thigh_r": SectionShape("thigh_r", [-0.1, 0, top], [-0.1, 0, top - 0.45], [0.07, 0.07], x)}
+    return points, secs
+
+
+def test_find_crotch_between_legs_apart():
+    """The crotch is the lowest point of the mid-plane strip between the legs: the torso's bottom."""
+    from recon.joints import find_crotch
+
+    points, secs = _crotch_scene(0.80)
+    c = find_crotch(points, secs)
+    assert c is not None and abs(c[2] - 0.80) < 0.006 and abs(c[0]) < 0.01
+
+
+def test_split_hips_lowers_thighs_to_the_crotch():
+    """Thighs fitted 15 cm above the crotch start CROTCH_SPLIT thigh lengths above it; a thigh
+    already starting lower, and flexed hips (no crotch sought along the thighs), are left alone."""
+    from recon.bodymodel import CROTCH_SPLIT
+    from recon.joints import split_hips
+
+    points, secs = _crotch_scene(0.80)
+    out = split_hips(points, secs)
+    for side in "lr":
+        t = out[f"thigh_{side}"]
+        assert abs(t.start[2] - (0.80 + CROTCH_SPLIT * 0.45)) < 0.006
+        assert np.allclose(t.end, secs[f"thigh_{side}"].end)
+    low = {**secs, "thigh_l": secs["thigh_l"].replace(start=np.array([0.1, 0, 0.82]))}
+    assert np.allclose(split_hips(points, low)["thigh_l"].start, [0.1, 0, 0.82])
+    x = np.array([1.0, 0, 0])
+    flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
+                         for s, c in (("l", 0.1), ("r", -0.1))}}
+    assert all(np.allclose(split_hips(points, flexed)[k].start, flexed[k].start) for k in ("thigh_l", "thigh_r"))
