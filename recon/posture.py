@@ -51,6 +51,13 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    again, locally, at that size); then each leg chain's length (hip to
    the farthest point along its lower leg) is measured and, when the legs' median ratio to the
    standard is off by more than `match_resize_tolerance`, the model is rescaled and matched again.
+   When the winner's torso is tilted (beyond `match_upright_start`), the best upright torso is matched
+   again at the new size too (`match_resize_upright`): the first size, the cloud's extent along a
+   tilted axis, is short (the body leaves that axis), and at that wrong size the upright torso lost
+   (a heavy body at k = 3: tilted 22 degrees, arms unfitted, explained 0.58; upright at the new size
+   0.64, every section fitted); it may win, or be tried when the winner fails its checks, only when
+   its head finds the crown on its axis (a seated body's upright torso brought back sat 16 cm high,
+   its head in the air).
    The legs are measured from the matched hips, so a torso matched too high or too low along its
    axis makes them too long or too short; crown to sole (through each leg) does not depend on
    where the torso sits. When the two disagree by more than `match_size_disagree` (adult sizes),
