@@ -526,6 +526,14 @@ def _torso_choice(cands: list, params: FitParams) -> list:
     return out
 
 
+def waist_wider_than_deep(pose: Pose) -> bool:
+    """Whether ``pose``'s waist, its radii measured on the points, is wider (frame x) than deep (y):
+    a waist is (ANSUR II: 0.31 x 0.22 m). A torso roll taken from the legs that makes it deeper than
+    wide took legs split front-back (a walker's stride) for legs apart sideways."""
+    r = pose.sections["waist"].radii
+    return bool(r[0] >= r[1])
+
+
 def upright_restart(pose: Pose, placed: list, upright_deg: float):
     """The match to start again from, beside ``pose``, when the body is resized: the best (most points
     explained) of ``placed`` whose torso is within ``upright_deg`` of +z, when ``pose``'s torso is
@@ -581,11 +589,11 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         placed = []
         eligible = []
         for sc, c, R in _torso_choice(cands, params):
-            trials.append((sc, c, R))
+            trials.append((sc, c, R, False))
             R2 = _roll_from_legs(points, c, R, body)
             if abs(R2[:, 0] @ R[:, 0]) < np.cos(np.radians(20)):
-                trials.append((sc, c, R2))   # the legs suggest another roll: let the match decide
-        for sc, c, R in trials:
+                trials.append((sc, c, R2, True))   # the legs suggest another roll: let the match decide
+        for sc, c, R, legs in trials:
             # the scanner's +z is up: trust it unless the torso lies nearly horizontal
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
@@ -596,6 +604,8 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                 placed.append(p)
                 if regained and abs(p.R[2, 2]) >= cos_up and _crown_shift(points, p.sections["head"]) is None:
                     continue   # an upright torso brought back must hang from a crown the points show
+                if legs and params.match_legs_roll_wide and not waist_wider_than_deep(p):
+                    continue   # the legs' roll gave a waist deeper than wide: they were split front-back
                 eligible.append(p)
         best = max(eligible or placed, key=lambda p: p.explained)
         alternatives += [p for p in (eligible or placed) if p is not best]

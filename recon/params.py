@@ -349,6 +349,11 @@ class FitParams:
                                            # crown on its axis. Measured: heavy_a_pose k3 at 10 mm, tilted 22 degrees with 4
                                            # arm sections unfitted (4.1 / 7.3 cm) -> upright, all fitted (3.0 / 7.7 cm)
                                            # (chosen)
+    match_legs_roll_wide: int = 1          # 2.3(1): 1 = a torso roll taken from the legs (`_roll_from_legs`) competes only
+                                           # when the waist, measured on the points, comes out wider than deep (anatomy, as
+                                           # `_check_plausible`): legs split front-back by a stride give the wrong roll.
+                                           # Measured: tall_walking k2 at 10 mm, refused -> pass 3.0 / 4.3 cm; nothing
+                                           # else changed at 10 or 20 mm (chosen)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
     match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
