@@ -526,6 +526,27 @@ def _torso_choice(cands: list, params: FitParams) -> list:
     return out
 
 
+def waist_wider_than_deep(pose: Pose) -> bool:
+    """Whether ``pose``'s waist, its radii measured on the points, is wider (frame x) than deep (y):
+    a waist is (ANSUR II: 0.31 x 0.22 m). A torso roll taken from the legs that makes it deeper than
+    wide took legs split front-back (a walker's stride) for legs apart sideways."""
+    r = pose.sections["waist"].radii
+    return bool(r[0] >= r[1])
+
+
+def upright_restart(pose: Pose, placed: list, upright_deg: float):
+    """The match to start again from, beside ``pose``, when the body is resized: the best (most points
+    explained) of ``placed`` whose torso is within ``upright_deg`` of +z, when ``pose``'s torso is
+    tilted beyond it (None otherwise). The size was measured along the tilted torso's axis (short:
+    the body leaves that axis), and at that wrong size the upright torso lost; people are scanned
+    mostly upright, so the upright one is matched again at the new size too and the points decide."""
+    cos_up = np.cos(np.radians(upright_deg))
+    up = [p for p in placed if abs(p.R[2, 2]) >= cos_up]
+    if abs(pose.R[2, 2]) >= cos_up or not up:
+        return None
+    return max(up, key=lambda p: p.explained)
+
+
 def coarse_match(points, scorer, params: FitParams) -> list:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
 
@@ -539,6 +560,8 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     dirs = fibonacci_sphere(params.match_directions)
     starts = None
     hang = None
+    regained = False   # the best upright torso was brought back after a tilted one set the size
+    cos_up = np.cos(np.radians(params.match_upright_start))
     pose = None
     alternatives = []
     rng = np.random.default_rng(params.fit_seed)
@@ -562,15 +585,15 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                     body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
                     cands = _match_torso(scorer, centroid, body, params,
                                          [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
-        best = None
         trials = []
         placed = []
+        eligible = []
         for sc, c, R in _torso_choice(cands, params):
-            trials.append((sc, c, R))
+            trials.append((sc, c, R, False))
             R2 = _roll_from_legs(points, c, R, body)
             if abs(R2[:, 0] @ R[:, 0]) < np.cos(np.radians(20)):
-                trials.append((sc, c, R2))   # the legs suggest another roll: let the match decide
-        for sc, c, R in trials:
+                trials.append((sc, c, R2, True))   # the legs suggest another roll: let the match decide
+        for sc, c, R, legs in trials:
             # the scanner's +z is up: trust it unless the torso lies nearly horizontal
             flips = (False,) if R[2, 2] > 0.5 else (True,) if R[2, 2] < -0.5 else (False, True)
             for flip in flips:
@@ -579,9 +602,13 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                 p.score += sc * torso_len(body)
                 p.explained = explained_fraction(sample, p.sections, params.match_explain_distance)
                 placed.append(p)
-                if best is None or p.explained > best.explained:
-                    best = p
-        alternatives += [p for p in placed if p is not best]
+                if regained and abs(p.R[2, 2]) >= cos_up and _crown_shift(points, p.sections["head"]) is None:
+                    continue   # an upright torso brought back must hang from a crown the points show
+                if legs and params.match_legs_roll_wide and not waist_wider_than_deep(p):
+                    continue   # the legs' roll gave a waist deeper than wide: they were split front-back
+                eligible.append(p)
+        best = max(eligible or placed, key=lambda p: p.explained)
+        alternatives += [p for p in (eligible or placed) if p is not best]
         if pose is not None and best.body.stature > pose.body.stature and best.explained < pose.explained:
             # matched again larger, the model explains fewer points (a larger model explains more
             # when it is right): the size came from a wrong pose; keep the first
@@ -609,6 +636,10 @@ def coarse_match(points, scorer, params: FitParams) -> list:
             break
         body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
         starts = [(pose.centre, pose.R)]
+        u = upright_restart(pose, placed, params.match_upright_start) if params.match_resize_upright else None
+        if u is not None:
+            starts.append((u.centre, u.R))
+            regained = True
         # sized from the crown because the legs, measured from the matched hips, disagreed: the torso
         # was misplaced along its axis; the next match hangs it from the crown wherever it is
         hang = params.match_resized_anchor_shift if use is crown and not params.match_size_from_crown else None

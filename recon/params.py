@@ -343,6 +343,17 @@ class FitParams:
                                            # a forearm folded back down a raised arm was matched at 150; chosen)
     match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen; 3
                                            # measured worse on child_standing, t_pose and seated)
+    match_resize_upright: int = 1          # 2.1: 1 = when the best match's torso is tilted (more than
+                                           # `match_upright_start`) and the body is resized, the best upright torso
+                                           # is matched again at the new size too; it may win only when its head finds the
+                                           # crown on its axis. Measured: heavy_a_pose k3 at 10 mm, tilted 22 degrees with 4
+                                           # arm sections unfitted (4.1 / 7.3 cm) -> upright, all fitted (3.0 / 7.7 cm)
+                                           # (chosen)
+    match_legs_roll_wide: int = 1          # 2.3(1): 1 = a torso roll taken from the legs (`_roll_from_legs`) competes only
+                                           # when the waist, measured on the points, comes out wider than deep (anatomy, as
+                                           # `_check_plausible`): legs split front-back by a stride give the wrong roll.
+                                           # Measured: tall_walking k2 at 10 mm, refused -> pass 3.0 / 4.3 cm; nothing
+                                           # else changed at 10 or 20 mm (chosen)
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
     match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
