@@ -2,15 +2,17 @@
 `recon.posture`).
 
 `front_sign` and `swap_sides` read front and back from the body's shape (feet, knees, hips);
-`place_joints` puts the rig's joints on the fitted sections; `split_torso`, `split_knees` and
-`joint_caps` make the reported sections meet where the body file's section labels change.
+`place_joints` puts the rig's joints on the fitted sections; `split_torso`, `split_hips`,
+`split_knees` and `joint_caps` make the reported sections meet where the body file's section labels
+change.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SPINE_BACK, StandardBody, TORSO_SPLIT, kind_of
+from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SPINE_BACK, TORSO_SPLIT,
+                        StandardBody, kind_of)
 from .geometry import cross, unit
 from .model import SectionShape
 
@@ -305,7 +307,7 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
     low = (1.0 - split) * w.length     # the part of the waist column that becomes chest
     radii = (low * w.radii + c.length * c.radii) / (low + c.length)
     chest = c.replace(start=cut, radii=radii, caps=np.array([min(c.caps[0], radii.min()), c.caps[1]]))
-    return split_hips(points, {**secs, "waist": w.replace(end=cut), "chest": chest})
+    return {**secs, "waist": w.replace(end=cut), "chest": chest}
 
 
 #: The crotch is sought along the thighs only while both thighs point within this angle of the

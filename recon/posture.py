@@ -124,8 +124,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
 8. The joints are the rig's (the body file format's); the sections reported in the `BodyFit` meet
    where the body file's section labels change, which is not always at a joint: the torso splits
    into waist and chest at `recon.bodymodel.TORSO_SPLIT` of the way from the pelvis to the chest
-   joint, the lower legs start `KNEE_SPLIT` statures below the knees, and sections meeting at a
-   joint have flat caps (`JOINT_CAP`). The clustering separates the sections there.
+   joint, the thighs start no higher than `CROTCH_SPLIT` thigh lengths above the crotch seen in
+   the points (`recon.joints.split_hips`), the lower legs start `KNEE_SPLIT` statures below the
+   knees, and sections meeting at a joint have flat caps (`JOINT_CAP`). The clustering separates the sections there.
 
 The code: `recon.match` (steps 2-4), `recon.adjust` (step 5), `recon.joints` (joints, front and
 back, reported sections: steps 5, 6, 8); the entry point and the checks (step 7) are here; the
@@ -143,8 +144,8 @@ from . import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from .cloud import check_points
 from .adjust import anchor_on_head_top, fine_adjust, fit_section, research_forearms
-from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ratio, split_knees, split_torso,
-                     swap_sides)
+from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ratio, split_hips, split_knees,
+                     split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction
 from .model import BodyFit, SECTIONS
 from .params import FitParams
@@ -277,7 +278,7 @@ def _finish(work, pose: Pose, params: FitParams):
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
     joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
-    fitted = joint_caps(split_knees(split_torso(work, fitted), joints, pose.body))
+    fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), joints, pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
                                                                 arm_tolerance=params.fit_arm_size_tolerance))
     return BodyFit(sections=fitted, joints=joints,
