@@ -365,13 +365,31 @@ def _keep_dir(s: SectionShape, d, start, length) -> SectionShape:
     return s.replace(start=start, end=start + length * unit(d))
 
 
-def _doubtful(cover: float, rms: float, params: FitParams) -> bool:
-    """The arm check of `recon.posture` (step 7): too little covered, or little covered and fitted badly."""
+def section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
+    """Per section, the fraction of its column's (theta, h) cells holding points near its surface
+    (within ``near`` metres), counting only points for which this section's surface is the nearest."""
+    names = list(secs)
+    D = np.stack([secs[n].distance(points) for n in names], axis=1)
+    k = np.argmin(D, axis=1)
+    out = {}
+    for j, n in enumerate(names):
+        sel = (k == j) & (D[:, j] < near)
+        r, th, h = secs[n].coords(points[sel])
+        col = (h >= 0) & (h <= secs[n].length)
+        ti = np.minimum((th[col] / (2 * np.pi) * n_theta).astype(int), n_theta - 1)
+        hi = np.minimum((h[col] / secs[n].length * n_h).astype(int), n_h - 1)
+        out[n] = len(np.unique(ti * n_h + hi)) / (n_theta * n_h)
+    return out
+
+
+def arm_doubtful(cover: float, rms: float, params: FitParams) -> bool:
+    """The arm check of `recon.posture` (step 7): an arm section too little covered (`section_cover`),
+    or little covered and fitted badly (rms, metres)."""
     return cover < params.fit_doubt_min_cover or (cover < params.fit_doubt_cover and rms > params.fit_doubt_rms)
 
 
-def research_forearms(points, secs: dict, resid: dict, counts: dict, body: StandardBody, params: FitParams,
-                      cover_of) -> tuple[dict, dict, dict, set]:
+def research_forearms(points, secs: dict, resid: dict, counts: dict, body: StandardBody,
+                      params: FitParams) -> tuple[dict, dict, dict, set]:
     """A forearm whose fit the arm check doubts, searched again on the points from its elbow.
 
     On a coarse volume a forearm resting against the body (across the chest, beside wide hips)
@@ -387,8 +405,6 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
     points : (n, 3) float
     secs, resid, counts : dict
         The fine adjustment's sections, residuals (m) and point counts by name.
-    cover_of : callable
-        ``cover_of(points, secs) -> {name: cover}``, the check's cover.
 
     Returns
     -------
@@ -397,12 +413,12 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
     replaced : set of str
         Their names: the coarse volume score no longer speaks for them.
     """
-    covers = cover_of(points, secs)
+    covers = section_cover(points, secs, params.fit_coverage_distance)
     replaced = set()
     for prox, dist, root, *_ in LIMBS:
         if not root.startswith("shoulder") or dist not in secs or prox not in secs:
             continue
-        if not _doubtful(covers.get(dist, 0.0), resid.get(dist, np.inf), params):
+        if not arm_doubtful(covers.get(dist, 0.0), resid.get(dist, np.inf), params):
             continue
         p = secs[prox]
         best = None
@@ -412,8 +428,8 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
             if found is None:
                 continue
             shp, rms, n = found
-            cov = cover_of(points, {**trial, dist: shp}).get(dist, 0.0)
-            if not _doubtful(cov, rms, params) and (best is None or cov > best[0]):
+            cov = section_cover(points, {**trial, dist: shp}, params.fit_coverage_distance).get(dist, 0.0)
+            if not arm_doubtful(cov, rms, params) and (best is None or cov > best[0]):
                 best = (cov, {**trial, dist: shp}, rms, n)
         if best is not None:
             secs, resid, counts = best[1], {**resid, dist: best[2]}, {**counts, dist: best[3]}

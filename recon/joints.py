@@ -233,15 +233,10 @@ def elbow_between(shoulder: np.ndarray, wrist: np.ndarray, d_upper: np.ndarray, 
     if D < 1e-3:
         return None
     e = v / D
-    F = frac
-    cb = float(np.clip(d_upper @ d_fore, -1.0, 1.0))
-    L = D / np.sqrt(F ** 2 + (1 - F) ** 2 + 2 * F * (1 - F) * cb)
-    t, s = F * L, (1 - F) * L
-    ca = float(np.clip((t * t + D * D - s * s) / (2 * t * D), -1.0, 1.0))
     side = d_upper - e * (d_upper @ e)
     ns = float(np.linalg.norm(side))
     side = side / ns if ns > 1e-6 else np.zeros(3)
-    return shoulder + t * (ca * e + np.sqrt(1.0 - ca * ca) * side)
+    return _apex(shoulder, e, D, frac, float(d_upper @ d_fore), side)
 
 
 def knee_between(hip: np.ndarray, ankle: np.ndarray, d_thigh: np.ndarray, d_shin: np.ndarray,
@@ -278,12 +273,21 @@ def knee_between(hip: np.ndarray, ankle: np.ndarray, d_thigh: np.ndarray, d_shin
     fwd = cross(e, hinge / nh)
     if fwd @ back > 0:
         fwd = -fwd
+    return _apex(hip, e, D, frac, float(d_thigh @ d_shin), fwd)
+
+
+def _apex(root: np.ndarray, e: np.ndarray, D: float, frac: float, cos_bend: float,
+          side: np.ndarray) -> np.ndarray:
+    """The middle joint (3,) of a two-bone chain from ``root`` (3,) whose far joint lies ``D`` metres
+    along the unit ``e`` (3,): the bones (lengths t, s with t / (t + s) = ``frac``) meet at an angle
+    whose cosine between their directions is ``cos_bend``, and the apex lies towards the unit
+    ``side`` (3,), perpendicular to ``e``."""
     F = frac
-    cb = float(np.clip(d_thigh @ d_shin, -1.0, 1.0))
+    cb = float(np.clip(cos_bend, -1.0, 1.0))
     L = D / np.sqrt(F ** 2 + (1 - F) ** 2 + 2 * F * (1 - F) * cb)
     t, s = F * L, (1 - F) * L
     ca = float(np.clip((t * t + D * D - s * s) / (2 * t * D), -1.0, 1.0))
-    return hip + t * (ca * e + np.sqrt(1.0 - ca * ca) * fwd)
+    return root + t * (ca * e + np.sqrt(1.0 - ca * ca) * side)
 
 
 def split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:

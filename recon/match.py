@@ -526,11 +526,12 @@ def _torso_choice(cands: list, params: FitParams) -> list:
     return out
 
 
-def waist_wider_than_deep(pose: Pose) -> bool:
-    """Whether ``pose``'s waist, its radii measured on the points, is wider (frame x) than deep (y):
-    a waist is (ANSUR II: 0.31 x 0.22 m). A torso roll taken from the legs that makes it deeper than
-    wide took legs split front-back (a walker's stride) for legs apart sideways."""
-    r = pose.sections["waist"].radii
+def waist_wider_than_deep(waist: SectionShape) -> bool:
+    """Whether the ``waist``, its radii measured on the points, is wider (frame x) than deep (y): a
+    waist is (ANSUR II: 0.31 x 0.22 m; the library's fits 1.3-1.7 x). A torso roll taken from the
+    legs that makes it deeper than wide took legs split front-back (a walker's stride) for legs apart
+    sideways."""
+    r = waist.radii
     return bool(r[0] >= r[1])
 
 
@@ -604,7 +605,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                 placed.append(p)
                 if regained and abs(p.R[2, 2]) >= cos_up and _crown_shift(points, p.sections["head"]) is None:
                     continue   # an upright torso brought back must hang from a crown the points show
-                if legs and params.match_legs_roll_wide and not waist_wider_than_deep(p):
+                if legs and params.match_legs_roll_wide and not waist_wider_than_deep(p.sections["waist"]):
                     continue   # the legs' roll gave a waist deeper than wide: they were split front-back
                 eligible.append(p)
         best = max(eligible or placed, key=lambda p: p.explained)

@@ -143,10 +143,10 @@ import numpy as np
 from . import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from .cloud import check_points
-from .adjust import anchor_on_head_top, fine_adjust, fit_section, research_forearms
+from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
 from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ratio, split_hips, split_knees,
                      split_torso, swap_sides)
-from .match import Pose, Scorer, coarse_match, explained_fraction
+from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
 from .model import BodyFit, SECTIONS
 from .params import FitParams
 from .volume import voxel_size, voxelize
@@ -219,8 +219,7 @@ def _finish(work, pose: Pose, params: FitParams):
     `ReconError` when the result is not a body (too few sections, too few points explained)."""
     secs, resid, counts = fine_adjust(work, pose, params)
     secs = anchor_on_head_top(secs, pose.body, params)
-    secs, resid, counts, researched = research_forearms(
-        work, secs, resid, counts, pose.body, params, lambda pts, s: _section_cover(pts, s, params.fit_coverage_distance))
+    secs, resid, counts, researched = research_forearms(work, secs, resid, counts, pose.body, params)
 
     # front and back from the data: relabel left/right when the provisional front was the back
     sign = front_sign(work, secs, pose.R)
@@ -235,7 +234,7 @@ def _finish(work, pose: Pose, params: FitParams):
         coarse_scores = {swap_sides(k): v for k, v in coarse_scores.items()}
         shell_scores = {swap_sides(k): v for k, v in shell_scores.items()}
 
-    cover = _section_cover(work, secs, params.fit_coverage_distance)
+    cover = section_cover(work, secs, params.fit_coverage_distance)
     back = sign * pose.R[:, 1]
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
                      or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
@@ -246,9 +245,8 @@ def _finish(work, pose: Pose, params: FitParams):
                          and not (kind_of(n) in ("thigh", "lower_leg")
                                   and cover.get(n, 0.0) >= params.fit_leg_seen_cover
                                   and resid.get(n, np.inf) <= params.fit_leg_seen_rms))
-                     or (kind_of(n) in ("upper_arm", "forearm") and (
-                         cover.get(n, 0.0) < params.fit_doubt_min_cover or (
-                             cover.get(n, 0.0) < params.fit_doubt_cover and resid.get(n, 0.0) > params.fit_doubt_rms))))
+                     or (kind_of(n) in ("upper_arm", "forearm")
+                         and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params)))
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
@@ -317,23 +315,6 @@ def _thigh_up(d: np.ndarray, R: np.ndarray) -> bool:
     return float(d @ R[:, 2]) > 0.5
 
 
-def _section_cover(points, secs: dict, near: float, n_theta: int = 12, n_h: int = 6) -> dict:
-    """Per section, the fraction of its column's (theta, h) cells holding points near its surface,
-    counting only points for which this section's surface is the nearest."""
-    names = list(secs)
-    D = np.stack([secs[n].distance(points) for n in names], axis=1)
-    k = np.argmin(D, axis=1)
-    out = {}
-    for j, n in enumerate(names):
-        sel = (k == j) & (D[:, j] < near)
-        r, th, h = secs[n].coords(points[sel])
-        col = (h >= 0) & (h <= secs[n].length)
-        ti = np.minimum((th[col] / (2 * np.pi) * n_theta).astype(int), n_theta - 1)
-        hi = np.minimum((h[col] / secs[n].length * n_h).astype(int), n_h - 1)
-        out[n] = len(np.unique(ti * n_h + hi)) / (n_theta * n_h)
-    return out
-
-
 def _check_leg_length(points, secs: dict, body: StandardBody) -> None:
     """`ReconError` when a fitted lower leg's sole lies too far from its knee for the body's size
     (`SHANK_RANGE`): the fit is made again from the next torso candidate, or refused."""
@@ -352,10 +333,9 @@ def _check_plausible(secs: dict, body: StandardBody) -> None:
         if s.radii.max() > 0.4 or s.radii.min() < 0.03:
             raise ReconError(f"the cloud does not look like a human body (its {s.name} would be "
                              f"{2 * s.radii.max():.2f} m wide)")
-    if w.radii[0] < w.radii[1]:
-        # a waist is wider than deep (ANSUR II: 0.31 x 0.22 m; the library's fits 1.3-1.7 x): deeper
-        # than wide, the fit took the body's front-back for its left-right (a walker's stride for
-        # legs spread apart)
+    if not waist_wider_than_deep(w):
+        # the fit took the body's front-back for its left-right (a walker's stride for legs spread
+        # apart)
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: the "
                          f"fitted waist would be deeper ({2 * w.radii[1]:.2f} m) than wide "
                          f"({2 * w.radii[0]:.2f} m)")

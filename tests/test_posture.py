@@ -135,7 +135,6 @@ def test_doubted_forearm_is_found_again_on_the_points():
     forearm; a forearm the check does not doubt is left alone."""
     from recon.adjust import research_forearms
     from recon.bodymodel import standard_body
-    from recon.posture import _section_cover
 
     body = standard_body(1.75)
     x = [1.0, 0.0, 0.0]
@@ -153,15 +152,12 @@ def test_doubted_forearm_is_found_again_on_the_points():
     resid = {"chest": 0.005, "upper_arm_r": 0.005, "forearm_r": 0.03}
     counts = {k: 500 for k in secs}
 
-    def cover(points, s):
-        return _section_cover(points, s, FitParams().fit_coverage_distance)
-
-    out, res, _, replaced = research_forearms(pts, secs, resid, counts, body, FitParams(), cover)
+    out, res, _, replaced = research_forearms(pts, secs, resid, counts, body, FitParams())
     assert replaced == {"forearm_r"}
     assert np.degrees(np.arccos(out["forearm_r"].axis @ true_dir)) < 10
     assert res["forearm_r"] < 0.01
 
-    kept, _, _, none = research_forearms(pts, truth, {**resid, "forearm_r": 0.005}, counts, body, FitParams(), cover)
+    kept, _, _, none = research_forearms(pts, truth, {**resid, "forearm_r": 0.005}, counts, body, FitParams())
     assert none == set() and kept["forearm_r"] is truth["forearm_r"]
 
 
@@ -595,11 +591,11 @@ def test_a_roll_from_the_legs_needs_a_waist_wider_than_deep():
 
     from recon.match import waist_wider_than_deep
 
-    def pose(wide, deep):
-        return NS(sections={"waist": NS(radii=np.array([wide, deep]))})
+    def waist(wide, deep):
+        return NS(radii=np.array([wide, deep]))
 
-    assert not waist_wider_than_deep(pose(0.13, 0.152))
-    assert waist_wider_than_deep(pose(0.159, 0.142))
+    assert not waist_wider_than_deep(waist(0.13, 0.152))
+    assert waist_wider_than_deep(waist(0.159, 0.142))
 
 
 # -- the whole library: 21 bodies x (k = 1, turned 137 degrees, k = 2, k = 3), as benchmarks.fit_table
