@@ -179,6 +179,9 @@ def validate(body: Body, *, check_units: bool = True) -> Body:
 
 
 def _from_npz(path: Path) -> Body:
+    import zipfile
+    if path.is_file() and not zipfile.is_zipfile(path):  # np.load would try it as a pickle
+        raise BodyError(f"{path}: not a .npz body file (not a zip archive)")
     try:
         with np.load(path, allow_pickle=False) as z:
             data = {k: z[k] for k in z.files}

@@ -60,7 +60,7 @@ def test_malformed_files_give_one_line_errors(tmp_path, breakage, message):
 def test_garbage_and_unknown_names(tmp_path):
     path = tmp_path / "junk.npz"
     path.write_bytes(b"not a zip")
-    with pytest.raises(BodyError, match="not a readable"):
+    with pytest.raises(BodyError, match="not a .npz body file"):
         load_body(path)
     with pytest.raises(BodyError, match="no such file"):
         load_body("no-such-body-anywhere")
@@ -70,11 +70,10 @@ def test_cli_reports_bad_body_in_one_line(tmp_path, capsys):
     from benchmarks.cli import main
     path = tmp_path / "junk.npz"
     path.write_bytes(b"not a zip")
-    # `poses show` and `scan` land later; `load_body` errors go through the same handler
-    from poses import cli  # noqa: F401  (the command module imports cleanly)
-    assert main(["poses", "list"]) == 0
-    out = capsys.readouterr().out
-    assert "bodies" in out
+    assert main(["scan", str(path), "--out", str(tmp_path / "c.ply")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err and "not a .npz body file" in err[-1] and "Traceback" not in "".join(err)
+    assert not (tmp_path / "c.ply").exists()
 
 
 def test_face_section_majority():
