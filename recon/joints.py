@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SPINE_BACK, TORSO_SPLIT,
-                        StandardBody, kind_of)
+                        TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, StandardBody, kind_of)
 from .geometry import cross, unit
 from .model import SectionShape
 
@@ -290,23 +290,37 @@ def _apex(root: np.ndarray, e: np.ndarray, D: float, frac: float, cos_bend: floa
     return root + t * (ca * e + np.sqrt(1.0 - ca * ca) * side)
 
 
-def split_torso(points, secs: dict, split: float = TORSO_SPLIT) -> dict:
+def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: float = TORSO_SPLIT_CROTCH,
+                limits: tuple = TORSO_SPLIT_RANGE) -> dict:
     """The reported waist and chest sections: split where the body's labels change, not at the
     chest joint where the fit joins the two columns.
 
-    The waist column is cut at ``split`` of its length (from the pelvis) and the chest column runs
-    from the cut to its top; the joints are not moved. Both sections then meet at the section
-    boundary of the body file format (`recon.bodymodel.TORSO_SPLIT`), which is what the clustering
-    separates: split at the chest joint, 5-17 % of a body's points (the lower ribs) were labelled
-    waist. The chest's radii become the length-weighted mean of the two columns' radii over its new
-    extent (the model's radii are means along a section; the lower ribs, fitted by the waist
-    column, are narrower than the shoulders). Measured on 21 bodies against keeping the chest's
-    radii or measuring them again (`_robust_radii`, which the arms beside the chest inflate): the
-    same section accuracy (0.869-0.873), the least bridging (mean 1.27 % against 1.38 and 1.28 %).
+    The waist column (pelvis joint to chest joint) is cut across its axis ``from_crotch`` of the way
+    from the crotch seen in the points (`find_crotch`) to the chest joint, along the axis
+    (`recon.bodymodel.TORSO_SPLIT_CROTCH`), or, when no crotch is found (hips flexed, legs
+    together), at ``split`` of its length from the pelvis (`recon.bodymodel.TORSO_SPLIT`); the cut
+    stays within ``limits`` of the column (`recon.bodymodel.TORSO_SPLIT_RANGE`). The chest column
+    runs from the cut to its top; the joints are not moved. Both sections then meet at the section
+    boundary of the body file format, which is what the clustering separates: split at the chest
+    joint, 5-17 % of a body's points (the lower ribs) were labelled waist. The crotch, seen on the
+    points, replaces the fitted pelvis, which rides with the waist column and is the torso's
+    worst-placed landmark along the axis (3-4 cm off on a_pose, child_arms_raised, heavy_standing,
+    tall_walking). The chest's radii become the length-weighted mean of the two columns' radii over
+    its new extent (the model's radii are means along a section; the lower ribs, fitted by the waist
+    column, are narrower than the shoulders).
+
+    Estimated posture, 21 shipped bodies, error of the cut against the plane across the column that
+    best separates the true labels: mean -0.95, sd 1.83, largest 4.5 cm (0.625 of the column) ->
+    +0.11, 1.25, 2.8 cm; section accuracy (truth among the labels) mean 0.950 -> 0.954.
     """
     if "waist" not in secs or "chest" not in secs:
         return secs
     w, c = secs["waist"], secs["chest"]
+    crotch = find_crotch(points, secs) if points is not None else None
+    if crotch is not None:
+        below = float((crotch - w.start) @ w.axis)      # along the column, from the pelvis end
+        split = (below + from_crotch * (w.length - below)) / w.length
+    split = float(np.clip(split, *limits))
     cut = w.start + split * w.length * w.axis
     low = (1.0 - split) * w.length     # the part of the waist column that becomes chest
     radii = (low * w.radii + c.length * c.radii) / (low + c.length)

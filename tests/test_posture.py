@@ -703,3 +703,56 @@ def test_split_hips_lowers_thighs_to_the_crotch():
     flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
                          for s, c in (("l", 0.1), ("r", -0.1))}}
     assert all(np.allclose(split_hips(points, flexed)[k].start, flexed[k].start) for k in ("thigh_l", "thigh_r"))
+
+
+def _torso_scene():
+    """The crotch scene with a chest column on the waist (pelvis end 0.95, chest joint 1.20, neck
+    1.50 m): the crotch seen at 0.80 m, 15 cm below the waist column's lower end."""
+    points, secs = _crotch_scene(0.80)
+    x = np.array([1.0, 0, 0])
+    chest = SectionShape("chest", [0, 0, 1.2], [0, 0, 1.5], [0.17, 0.12], x)
+    return points, {**secs, "chest": chest}
+
+
+def test_split_torso_cuts_from_the_crotch_seen_or_along_the_column():
+    """The reported waist and chest meet TORSO_SPLIT_CROTCH of the way from the crotch seen in the
+    points to the chest joint; without a crotch (hips flexed) at TORSO_SPLIT of the waist column;
+    within TORSO_SPLIT_RANGE of the column always. The chest keeps its top, the waist its bottom."""
+    from recon.bodymodel import TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE
+    from recon.joints import split_torso
+
+    points, secs = _torso_scene()
+    out = split_torso(points, secs)
+    cut = 0.80 + TORSO_SPLIT_CROTCH * (1.20 - 0.80)
+    assert abs(out["waist"].end[2] - cut) < 0.006 and abs(out["chest"].start[2] - cut) < 0.006
+    assert np.allclose(out["waist"].start, secs["waist"].start) and np.allclose(out["chest"].end, secs["chest"].end)
+    x = np.array([1.0, 0, 0])
+    flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
+                         for s, c in (("l", 0.1), ("r", -0.1))}}
+    assert abs(split_torso(points, flexed)["waist"].end[2] - (0.95 + TORSO_SPLIT * 0.25)) < 1e-9
+    far = split_torso(points, secs, from_crotch=1.5)   # a cut beyond the chest joint is held on the waist
+    assert abs(far["waist"].end[2] - (0.95 + TORSO_SPLIT_RANGE[1] * 0.25)) < 1e-9
+
+
+@pytest.mark.parametrize("case", ["k1", "k1_rot137", "k3"])
+def test_standing_waist_and_chest_meet_where_the_labels_change(standing_fits, case):
+    """The reported waist/chest boundary of the estimated posture lies within 2 cm, along the waist
+    column, of the plane across it that best separates the body's waist and chest vertices (cut at
+    0.625 of the column from the fitted pelvis: -3.0, -2.9, -1.2 cm; from the crotch: -1.2, -1.0,
+    +0.8 cm)."""
+    import poses
+    from benchmarks.fit_table import rot_z
+
+    fit, _ = standing_fits[case]
+    body = poses.load_body("standing")
+    verts = body.vertices @ rot_z(137 if case == "k1_rot137" else 0).T
+    w = fit.sections["waist"]
+    lab = np.asarray(body.vertex_section)
+    torso = np.isin(lab, [SECTIONS.index("waist"), SECTIONS.index("chest")])
+    t = (verts[torso] - w.start) @ w.axis
+    is_waist = lab[torso] == SECTIONS.index("waist")
+    cuts = np.linspace(0.0, 0.6, 601)
+    wrong = (is_waist[None, :] & (t[None, :] > cuts[:, None])).sum(1) + \
+        (~is_waist[None, :] & (t[None, :] <= cuts[:, None])).sum(1)
+    best = cuts[wrong == wrong.min()].mean()
+    assert abs(w.length - best) < 0.02
