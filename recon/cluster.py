@@ -6,9 +6,11 @@ The steps, each usable alone:
 2. `simple_clustering`: a point joins every section whose surface is nearer than T_d (the baseline).
 3. `refine_by_distance`: per (theta, h) cell of a section, an Otsu threshold on r splits two peaks
    and keeps the smaller-r one, unless the cell is single-peaked (the T_n test).
-4. `adopt_unlabeled`, `reduce_to_two`, `resolve_two_sections`, `resolve_joints`: settle the points
-   left in no section, in three or more, and in two sections (paper section 3.2). Where the paper
-   is silent (documented on `recon.params.ClusterParams`): the three-or-more rule never drops the
+4. `adopt_unlabeled`, `claim_across_joints`, `reduce_to_two`, `resolve_two_sections`,
+   `resolve_joints`: settle the points left in no section, in one section across a joint, in
+   three or more, and in two sections (paper section 3.2). Where the paper is silent (documented
+   on `recon.params.ClusterParams`): a point claimed by one section only, inside the column of
+   the adjacent one and on its side of their joint plane, goes to it; the three-or-more rule never drops the
    surface a point lies on; the joint rule's fronts are weighed with the model's joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
@@ -620,9 +622,68 @@ for (_p, _d) in ADJACENT:
     _PROXIMAL[_i, _j] = _PROXIMAL[_j, _i] = _i
 
 
+def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
+                        fit: BodyFit, reach: float = 0.5,
+                        params: ClusterParams = ClusterParams()) -> np.ndarray:
+    """Points claimed by one section alone but lying in the adjacent section go to it (paper silent).
+
+    The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
+    Where the body narrows or slopes inside a section's column near a joint, its surface lies
+    deeper inside that column than T_d: the base of the neck and the slope of the trapezius inside
+    the chest's column (the body file's chest reaches the neck joint; only the head's start cap,
+    around the neck joint, claims them), the back of the knee inside the lower leg's column. Such a point is
+    claimed by the adjacent section only, on the wrong side of their joint. A point claimed by one
+    section S alone, lying inside the column of a section T adjacent to S (``r_T < 0``, within T's
+    axial extent) and on T's side of their joint plane (`joint_plane_score`, within ``reach``
+    widths of the distal section) goes to T instead. Side joints without a plane (the hips) and
+    points beyond the distal column's end at the shoulders (score 0) are left alone.
+
+    Parameters
+    ----------
+    member : (n, 11) bool
+    points : (n, 3) float, metres
+    r, h : (n, 11) float
+        From `section_coordinates`.
+    fit : BodyFit
+    reach : float
+        Widths of the distal section: how far from the joint plane a point may lie.
+    params : ClusterParams
+        For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
+        ``joint_plane_overlap_middle``).
+
+    Returns
+    -------
+    member : (n, 11) bool
+        A copy; the moved points are in T only.
+    """
+    out = member.copy()
+    single = member.sum(axis=1) == 1
+    for (p, d) in ADJACENT:
+        if p not in fit.sections or d not in fit.sections:
+            continue
+        ip, idd = SECTIONS.index(p), SECTIONS.index(d)
+        for src, dst, sign in ((idd, ip, -1.0), (ip, idd, 1.0)):
+            T = fit.sections[SECTIONS[dst]]
+            with np.errstate(invalid="ignore"):
+                cand = np.flatnonzero(single & member[:, src] & (r[:, dst] < 0) & (h[:, dst] >= 0)
+                                      & (h[:, dst] <= T.length))
+            if len(cand) == 0:
+                continue
+            s = sign * joint_plane_score(points[cand], np.full(len(cand), ip), np.full(len(cand), idd),
+                                         fit, reach, params.mitre_band, params.side_joint_planes,
+                                         params.joint_plane_overlap_middle)
+            go = cand[(s > 0) & (s < 1)]
+            out[go, src] = False
+            out[go, dst] = True
+    return out
+
+
 def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray, fit: BodyFit,
                  params: ClusterParams = ClusterParams(), tree=None, radius: float | None = None) -> np.ndarray:
     """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
+
+    First (paper silent), points claimed by one section alone across a joint go to the adjacent
+    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0).
 
     Parameters
     ----------
@@ -646,6 +707,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
+    if params.claim_across_joints > 0:
+        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params)
     out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
                         keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)

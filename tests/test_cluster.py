@@ -237,3 +237,28 @@ def test_joint_plane_splits_an_overlap_of_the_columns_in_its_middle():
     pts = np.column_stack([np.full(5, 0.045), np.zeros(5), z])
     score = C.joint_plane_score(pts, np.full(5, I["upper_arm_l"]), np.full(5, I["forearm_l"]), fit, 0.3)
     assert np.allclose(score, np.clip((1.10 - z) / (0.3 * fore.width), -1, 1))
+
+
+def test_a_point_claimed_across_the_neck_goes_to_the_column_it_lies_in():
+    """The base of the neck inside the chest's column, deeper than T_d: only the head's start cap
+    claims it. It lies below the neck plane, inside the chest: it goes to the chest. A point above
+    the plane, and one further below it than the reach, keep the head."""
+    neck = np.array([0, 0, 1.45])
+    chest = SectionShape("chest", [0, 0, 1.15], neck, [0.15, 0.10], X)
+    head = SectionShape("head", neck, [0, 0, 1.65], [0.05, 0.05], X)
+    fit = BodyFit(sections={"chest": chest, "head": head}, joints={"neck": neck})
+    P = np.array([[0.05, 0, 1.42], [0.05, 0, 1.47], [0.05, 0, 1.38]])
+    r, _, h = C.section_coordinates(P, fit)
+    m = C.simple_clustering(r, C.section_widths(fit), 0.3)
+    assert m[0, I["head"]] and not m[0, I["chest"]]                  # the T_d shell misses the chest
+    m[:, I["head"]], m[:, I["chest"]] = True, False                  # all three claimed by the head
+    out = C.claim_across_joints(m, P, r, h, fit, reach=0.5)          # reach 0.5 * 0.1 m = 5 cm
+    assert out[0].nonzero()[0].tolist() == [I["chest"]]
+    assert out[1].nonzero()[0].tolist() == [I["head"]]
+    assert out[2].nonzero()[0].tolist() == [I["head"]]
+    # outside the chest's column (beside it): not the chest's
+    side = np.array([[0.16, 0, 1.42]])
+    rs, _, hs = C.section_coordinates(side, fit)
+    ms = np.zeros((1, 11), bool)
+    ms[0, I["head"]] = True
+    assert C.claim_across_joints(ms, side, rs, hs, fit, reach=0.5)[0, I["head"]]
