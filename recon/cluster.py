@@ -450,9 +450,31 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
 SIDE_JOINT = 0.7
 
 
+#: The joints at the far ends of the bones that meet at an end joint: {joint: (the proximal
+#: section's other joint, the distal section's other joint)}.
+BONE_ENDS = {"chest": ("pelvis", "neck"), "neck": ("chest", "head"),
+             "elbow_l": ("shoulder_l", "wrist_l"), "elbow_r": ("shoulder_r", "wrist_r"),
+             "knee_l": ("hip_l", "ankle_l"), "knee_r": ("hip_r", "ankle_r")}
+
+#: A bone further than this from its section's axis (degrees) is not used (a misplaced joint).
+BONE_MAX_ANGLE = 45.0
+
+
+def _bone(fit: BodyFit, a: str, b: str, axis: np.ndarray) -> np.ndarray:
+    """(3,) unit direction from joint ``a`` to joint ``b`` of ``fit``, or ``axis`` (unit, pointing
+    the same way) when a joint is missing or the bone lies more than `BONE_MAX_ANGLE` from it."""
+    if not fit.joints or a not in fit.joints or b not in fit.joints:
+        return axis
+    v = np.asarray(fit.joints[b], dtype=float) - np.asarray(fit.joints[a], dtype=float)
+    n = np.linalg.norm(v)
+    if n < 1e-6 or (v / n) @ axis < np.cos(np.radians(BONE_MAX_ANGLE)):
+        return axis
+    return v / n
+
+
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
-                      overlap_middle: bool = True) -> np.ndarray:
+                      overlap_middle: bool = True, bones: bool = False) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -489,6 +511,14 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Planes at the side joints beside P's column (default: none at side joints).
     overlap_middle : bool
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
+    bones : bool
+        At the end joints (`BONE_ENDS`: chest, neck, elbows, knees), the directions of the bones
+        from the fit's joints instead of the columns' axes: P's from its other joint to the joint,
+        D's from the joint to its other joint (each only within `BONE_MAX_ANGLE` of the axis).
+        The body file's sections are where the skinning weights change bones, and the bones run
+        between the joints; a column's axis runs through the middle of the flesh, which can lean
+        away from the bone (the spine lies at the back of the torso and the waist's column,
+        fitted to the belly and the buttocks, stands more upright than the lumbar spine).
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -511,16 +541,19 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
             out[sel] = np.where(h >= 0, score, 0.0)
             continue
         toward = P.axis if along > P.length / 2 else -P.axis
+        origin = D.start if at_start else D.end
+        overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
+        if bones and joint in BONE_ENDS:  # the body file's bones, from the joints
+            toward = _bone(fit, BONE_ENDS[joint][0], joint, toward)
+            away = _bone(fit, joint, BONE_ENDS[joint][1], away)
         normal = toward + away
         n = np.linalg.norm(normal)
         normal = normal / n if n > 1e-3 else away
-        origin = D.start if at_start else D.end
         beyond = (j - origin) @ toward / D.width   # the joint lies this far past D's end, widths
         if beyond > mitre_band:
             normal = toward
         elif beyond < -mitre_band:
             normal = away
-        overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
         if overlap > 0 and overlap_middle:  # the columns overlap along P's axis: its middle
             origin = origin + 0.5 * overlap * toward
         out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
@@ -529,7 +562,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False, overlap_middle=True):
+                   side_planes=False, overlap_middle=True, bones=False):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -603,7 +636,8 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                              np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
-                                                           mitre_band, side_planes, overlap_middle)
+                                                           mitre_band, side_planes, overlap_middle,
+                                                           bones)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -649,7 +683,7 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
         Widths of the distal section: how far from the joint plane a point may lie.
     params : ClusterParams
         For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
-        ``joint_plane_overlap_middle``).
+        ``joint_plane_overlap_middle``, ``joint_plane_bones``).
 
     Returns
     -------
@@ -671,7 +705,7 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                 continue
             s = sign * joint_plane_score(points[cand], np.full(len(cand), ip), np.full(len(cand), idd),
                                          fit, reach, params.mitre_band, params.side_joint_planes,
-                                         params.joint_plane_overlap_middle)
+                                         params.joint_plane_overlap_middle, params.joint_plane_bones)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True
@@ -725,7 +759,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
-                       overlap_middle=params.joint_plane_overlap_middle)
+                       overlap_middle=params.joint_plane_overlap_middle,
+                       bones=params.joint_plane_bones)
     return out
 
 

@@ -262,3 +262,26 @@ def test_a_point_claimed_across_the_neck_goes_to_the_column_it_lies_in():
     ms = np.zeros((1, 11), bool)
     ms[0, I["head"]] = True
     assert C.claim_across_joints(ms, side, rs, hs, fit, reach=0.5)[0, I["head"]]
+
+
+def test_joint_plane_follows_the_bones_between_the_joints():
+    """An upright waist column whose spine (pelvis -> chest joint) leans back 21.8 degrees: with
+    ``bones`` the plane's normal bisects the spine and the chest's bone, not the columns' axes; a
+    joint placed far off its column (a bone 63 degrees from the axis) is not used."""
+    j = np.array([0, 0, 1.2])
+    waist = SectionShape("waist", j, [0, 0, 0.95], [0.15, 0.1], X)
+    chest = SectionShape("chest", j, [0, 0, 1.5], [0.15, 0.1], X)
+    joints = {"pelvis": np.array([0, -0.1, 0.95]), "chest": j, "neck": np.array([0, 0, 1.5])}
+    fit = BodyFit(sections={"waist": waist, "chest": chest}, joints=joints)
+    pts = j + np.array([[0, -0.1, 0.01], [0, 0.1, 0.01], [0, 0, -0.02]])
+    w, c = np.full(3, I["waist"]), np.full(3, I["chest"])
+    spine = np.array([0, 0.1, 0.25]) / np.hypot(0.1, 0.25)
+    normal = (spine + [0, 0, 1]) / np.linalg.norm(spine + [0, 0, 1])
+    score = C.joint_plane_score(pts, w, c, fit, 0.3, bones=True)
+    assert np.allclose(score, (pts - j) @ normal / (0.3 * chest.width))
+    assert score[0] < 0 < score[1]                    # 1 cm above the joint: waist in front, chest behind
+    axes = C.joint_plane_score(pts, w, c, fit, 0.3)
+    assert np.allclose(axes, (pts[:, 2] - 1.2) / (0.3 * chest.width))
+    joints["pelvis"] = np.array([0, -0.5, 0.95])
+    off = C.joint_plane_score(pts, w, c, BodyFit(sections=fit.sections, joints=joints), 0.3, bones=True)
+    assert np.allclose(off, axes)
