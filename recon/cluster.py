@@ -472,9 +472,32 @@ def _bone(fit: BodyFit, a: str, b: str, axis: np.ndarray) -> np.ndarray:
     return v / n
 
 
+#: The joint toward the body's midline from each side joint (the other side's; the second if the
+#: first is missing).
+_MIDLINE = {"shoulder_l": ("shoulder_r", "neck"), "shoulder_r": ("shoulder_l", "neck"),
+            "hip_l": ("hip_r", "pelvis"), "hip_r": ("hip_l", "pelvis")}
+
+
+def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray, tilt: float) -> np.ndarray:
+    """(3,) unit normal ``away - tilt * inward``: ``away`` (unit, the limb's axis) tilted toward
+    the body's midline, ``inward`` the unit direction from the joint ``j`` to the midline joint
+    (`_MIDLINE`) across ``away``. ``away`` unchanged where no midline joint is known or the limb
+    points along the line to it (less than 0.3 of that line across the limb: a T-pose's arm)."""
+    names = [n for n in _MIDLINE.get(joint, ()) if fit.joints and n in fit.joints]
+    if not names:
+        return away
+    to_mid = np.asarray(fit.joints[names[0]], dtype=float) - j
+    inward = to_mid - (to_mid @ away) * away
+    if np.linalg.norm(inward) < 0.3 * np.linalg.norm(to_mid):
+        return away
+    normal = away - tilt * inward / np.linalg.norm(inward)
+    return normal / np.linalg.norm(normal)
+
+
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
-                      overlap_middle: bool = True, bones: bool = False) -> np.ndarray:
+                      overlap_middle: bool = True, bones: bool = False,
+                      side_tilt: float = 0.0) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -519,6 +542,11 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         between the joints; a column's axis runs through the middle of the flesh, which can lean
         away from the bone (the spine lies at the back of the torso and the waist's column,
         fitted to the belly and the buttocks, stands more upright than the lumbar spine).
+    side_tilt : float
+        At the shoulders (``side_planes``), the plane's normal is tilted toward the body's midline
+        by this (the tangent of the tilt; `_tilt_to_midline`): the body file's upper arm
+        includes the deltoid, which caps the joint from outside, while the chest reaches below
+        the joint on the armpit's side; the boundary is high outside and low inside.
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -534,8 +562,9 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
             if not (side_planes and 0.0 <= along <= P.length):
                 continue  # a side joint beyond P's end (hips): no plane
-            # beside P's column (shoulders): D's cross-section through the joint
-            score = np.clip((points[sel] - j) @ away / (reach * D.width), -1.0, 1.0)
+            # beside P's column (shoulders): D's cross-section through the joint, tilted
+            normal = _tilt_to_midline(fit, joint, j, away, side_tilt) if side_tilt > 0 else away
+            score = np.clip((points[sel] - j) @ normal / (reach * D.width), -1.0, 1.0)
             # only along D's column: beyond its end (its cap, a capsule's dome) the plane says nothing
             h = (points[sel] - (D.start if at_start else D.end)) @ away
             out[sel] = np.where(h >= 0, score, 0.0)
@@ -562,7 +591,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False, overlap_middle=True, bones=False):
+                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -637,7 +666,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
                                                            mitre_band, side_planes, overlap_middle,
-                                                           bones)
+                                                           bones, side_tilt)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -683,7 +712,7 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
         Widths of the distal section: how far from the joint plane a point may lie.
     params : ClusterParams
         For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
-        ``joint_plane_overlap_middle``, ``joint_plane_bones``).
+        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``).
 
     Returns
     -------
@@ -705,7 +734,8 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                 continue
             s = sign * joint_plane_score(points[cand], np.full(len(cand), ip), np.full(len(cand), idd),
                                          fit, reach, params.mitre_band, params.side_joint_planes,
-                                         params.joint_plane_overlap_middle, params.joint_plane_bones)
+                                         params.joint_plane_overlap_middle, params.joint_plane_bones,
+                                         params.side_plane_tilt)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True
@@ -760,7 +790,7 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
                        overlap_middle=params.joint_plane_overlap_middle,
-                       bones=params.joint_plane_bones)
+                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt)
     return out
 
 

@@ -130,6 +130,19 @@ class ClusterParams:
         run between the joints); estimated posture False 0.9516, True 0.9537 (the 13
         average_male postures 0.9509 -> 0.9533, the other 8 0.9526 -> 0.9543); only P's bone and only
         where the plane is P's cross-section (the chest joint), 0.9527.
+    side_plane_tilt : float
+        The shoulders' plane (``side_joint_planes``), the arm's cross-section through the joint,
+        is tilted toward the body's midline by this (the tangent of the tilt; paper silent; see
+        `recon.cluster.joint_plane_score`): the body file's upper arm includes the deltoid, which
+        caps the joint from outside, and its chest reaches below the joint on the armpit's side.
+        Chosen on the 13 average_male postures (`paper` scans, the clustering alone on the same
+        fits; mean truth among labels, oracle / estimated posture): 0 -> 0.9674 / 0.9533; 0.4 ->
+        0.9689 / 0.9538; 0.5 -> 0.9691 / 0.9539; 0.7 -> 0.9694 / 0.9540; 1 -> 0.9697 / 0.9543;
+        1.5 -> 0.9698 / 0.9543; 2 -> 0.9698 / 0.9542; 3 -> 0.9697 / 0.9537; through a point 0.1
+        arm widths above or below the joint instead, at 0.6: 0.9692 / 0.9537, 0.9685 / 0.9541.
+        (This sweep without the guard of `recon.cluster._tilt_to_midline` against arms along the
+        shoulder line; with it, at 1: 0.9700 / 0.9546.) The other 8 postures (not used to
+        choose), 0 -> 1: 0.9716 -> 0.9726 / 0.9543 -> 0.9555.
     claim_across_joints : float
         A point claimed by one section alone, inside the column of an adjacent section and on that
         section's side of their joint plane (within this many widths of the distal section), goes
@@ -171,6 +184,7 @@ class ClusterParams:
     three_keep_nearest: float = 0.1  # paper silent (chosen: see above)
     claim_across_joints: float = 0.5  # paper silent (chosen: see above), widths
     joint_plane_bones: bool = True   # paper silent (chosen: see above)
+    side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
 
@@ -187,6 +201,7 @@ class ClusterParams:
         _check(self.joint_reach > 0, "joint_reach", self.joint_reach, "> 0")
         _check(self.joint_plane_weight >= 0, "joint_plane_weight", self.joint_plane_weight, ">= 0")
         _check(self.mitre_band >= 0, "mitre_band", self.mitre_band, ">= 0 widths")
+        _check(self.side_plane_tilt >= 0, "side_plane_tilt", self.side_plane_tilt, ">= 0")
         _check(self.claim_across_joints >= 0, "claim_across_joints", self.claim_across_joints,
                ">= 0 widths")
         _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")

@@ -285,3 +285,27 @@ def test_joint_plane_follows_the_bones_between_the_joints():
     joints["pelvis"] = np.array([0, -0.5, 0.95])
     off = C.joint_plane_score(pts, w, c, BodyFit(sections=fit.sections, joints=joints), 0.3, bones=True)
     assert np.allclose(off, axes)
+
+
+def test_shoulder_plane_tilts_toward_the_midline():
+    """A hanging arm: with the tilt, a point outside and above the joint (the deltoid) scores for
+    the arm, a point inside and below it (the chest beside the armpit) for the chest; an arm held
+    out along the shoulder line keeps the plain cross-section."""
+    shoulder = np.array([0.2, 0, 1.40])
+    chest = SectionShape("chest", [0, 0, 1.15], [0, 0, 1.45], [0.15, 0.10], X)
+    arm = SectionShape("upper_arm_l", shoulder + [0, 0, 0.04], [0.2, 0, 1.10], [0.045, 0.045], X)
+    joints = {"shoulder_l": shoulder, "shoulder_r": np.array([-0.2, 0, 1.40])}
+    fit = BodyFit(sections={"chest": chest, "upper_arm_l": arm}, joints=joints)
+    pts = shoulder + np.array([[0.04, 0, 0.02], [-0.04, 0, -0.02]])
+    c, a = np.full(2, I["chest"]), np.full(2, I["upper_arm_l"])
+    plain = C.joint_plane_score(pts, c, a, fit, 0.3, side_planes=True)
+    assert plain[0] < 0 < plain[1]
+    tilted = C.joint_plane_score(pts, c, a, fit, 0.3, side_planes=True, side_tilt=1.0)
+    normal = np.array([1.0, 0, -1.0]) / np.sqrt(2)                # down, tilted 45 deg outward
+    assert np.allclose(tilted, (pts - shoulder) @ normal / (0.3 * arm.width))
+    assert tilted[1] < 0 < tilted[0]
+    out = SectionShape("upper_arm_l", shoulder, [0.5, 0, 1.40], [0.045, 0.045], [0, 0, 1.0])  # T-pose
+    fit_t = BodyFit(sections={"chest": chest, "upper_arm_l": out}, joints=joints)
+    q = shoulder + np.array([[0.02, 0, 0.03], [0.02, 0, -0.03]])
+    assert np.allclose(C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True, side_tilt=1.0),
+                       C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True))
