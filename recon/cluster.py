@@ -10,8 +10,9 @@ The steps, each usable alone:
    `resolve_joints`: settle the points left in no section, in one section across a joint, in
    three or more, and in two sections (paper section 3.2). Where the paper is silent (documented
    on `recon.params.ClusterParams`): a point claimed by one section only, inside the column of
-   the adjacent one and on its side of their joint plane, goes to it; the three-or-more rule never drops the
-   surface a point lies on; the joint rule's fronts are weighed with the model's joint plane
+   the adjacent one and on its side of their joint plane, goes to it; the three-or-more rule
+   never drops the surface a point lies on; the joint rule's fronts are weighed with the model's
+   joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
    shoulder).
@@ -478,7 +479,8 @@ _MIDLINE = {"shoulder_l": ("shoulder_r", "neck"), "shoulder_r": ("shoulder_l", "
             "hip_l": ("hip_r", "pelvis"), "hip_r": ("hip_l", "pelvis")}
 
 
-def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray, tilt: float) -> np.ndarray:
+def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
+                     tilt: float) -> np.ndarray:
     """(3,) unit normal ``away - tilt * inward``: ``away`` (unit, the limb's axis) tilted toward
     the body's midline, ``inward`` the unit direction from the joint ``j`` to the midline joint
     (`_MIDLINE`) across ``away``. ``away`` unchanged where no midline joint is known or the limb
@@ -543,7 +545,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         away from the bone (the spine lies at the back of the torso and the waist's column,
         fitted to the belly and the buttocks, stands more upright than the lumbar spine).
     side_tilt : float
-        At the shoulders (``side_planes``), the plane's normal is tilted toward the body's midline
+        At the side joints beside P's column (``side_planes``: the shoulders, and an estimated hip
+        level with the waist's lower end), the plane's normal is tilted toward the body's midline
         by this (the tangent of the tilt; `_tilt_to_midline`): the body file's upper arm
         includes the deltoid, which caps the joint from outside, while the chest reaches below
         the joint on the armpit's side; the boundary is high outside and low inside.
@@ -688,18 +691,19 @@ for (_p, _d) in ADJACENT:
 def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
                         fit: BodyFit, reach: float = 0.5,
                         params: ClusterParams = ClusterParams()) -> np.ndarray:
-    """Points claimed by one section alone but lying in the adjacent section go to it (paper silent).
+    """Points claimed by one section alone but lying in the adjacent one go to it (paper silent).
 
     The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
     Where the body narrows or slopes inside a section's column near a joint, its surface lies
     deeper inside that column than T_d: the base of the neck and the slope of the trapezius inside
     the chest's column (the body file's chest reaches the neck joint; only the head's start cap,
-    around the neck joint, claims them), the back of the knee inside the lower leg's column. Such a point is
-    claimed by the adjacent section only, on the wrong side of their joint. A point claimed by one
-    section S alone, lying inside the column of a section T adjacent to S (``r_T < 0``, within T's
-    axial extent) and on T's side of their joint plane (`joint_plane_score`, within ``reach``
-    widths of the distal section) goes to T instead. Side joints without a plane (the hips) and
-    points beyond the distal column's end at the shoulders (score 0) are left alone.
+    around the neck joint, claims them), the back of the knee inside the lower leg's column. Such
+    a point is claimed by the adjacent section only, on the wrong side of their joint. A point
+    claimed by one section S alone, lying inside the column of a section T adjacent to S
+    (``r_T < 0``, within T's axial extent) and on T's side of their joint plane
+    (`joint_plane_score`, within ``reach`` widths of the distal section) goes to T instead. Side
+    joints without a plane (the hips) and points beyond the distal column's end at the shoulders
+    (score 0) are left alone.
 
     Parameters
     ----------
@@ -732,10 +736,11 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                                       & (h[:, dst] <= T.length))
             if len(cand) == 0:
                 continue
-            s = sign * joint_plane_score(points[cand], np.full(len(cand), ip), np.full(len(cand), idd),
-                                         fit, reach, params.mitre_band, params.side_joint_planes,
-                                         params.joint_plane_overlap_middle, params.joint_plane_bones,
-                                         params.side_plane_tilt)
+            s = sign * joint_plane_score(points[cand], np.full(len(cand), ip),
+                                         np.full(len(cand), idd), fit, reach, params.mitre_band,
+                                         params.side_joint_planes,
+                                         params.joint_plane_overlap_middle,
+                                         params.joint_plane_bones, params.side_plane_tilt)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True

@@ -128,8 +128,8 @@ class ClusterParams:
         Measured (21 shipped postures, `paper` scans, the clustering alone on the same fits, with
         ``claim_across_joints``; mean truth among labels): oracle posture 0.9690 both (its axes
         run between the joints); estimated posture False 0.9516, True 0.9537 (the 13
-        average_male postures 0.9509 -> 0.9533, the other 8 0.9526 -> 0.9543); only P's bone and only
-        where the plane is P's cross-section (the chest joint), 0.9527.
+        average_male postures 0.9509 -> 0.9533, the other 8 0.9526 -> 0.9543); only P's bone
+        and only where the plane is P's cross-section (the chest joint), 0.9527.
     side_plane_tilt : float
         The shoulders' plane (``side_joint_planes``), the arm's cross-section through the joint,
         is tilted toward the body's midline by this (the tangent of the tilt; paper silent; see

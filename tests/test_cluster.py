@@ -250,7 +250,7 @@ def test_a_point_claimed_across_the_neck_goes_to_the_column_it_lies_in():
     P = np.array([[0.05, 0, 1.42], [0.05, 0, 1.47], [0.05, 0, 1.38]])
     r, _, h = C.section_coordinates(P, fit)
     m = C.simple_clustering(r, C.section_widths(fit), 0.3)
-    assert m[0, I["head"]] and not m[0, I["chest"]]                  # the T_d shell misses the chest
+    assert m[0, I["head"]] and not m[0, I["chest"]]             # the T_d shell misses the chest
     m[:, I["head"]], m[:, I["chest"]] = True, False                  # all three claimed by the head
     out = C.claim_across_joints(m, P, r, h, fit, reach=0.5)          # reach 0.5 * 0.1 m = 5 cm
     assert out[0].nonzero()[0].tolist() == [I["chest"]]
@@ -279,11 +279,12 @@ def test_joint_plane_follows_the_bones_between_the_joints():
     normal = (spine + [0, 0, 1]) / np.linalg.norm(spine + [0, 0, 1])
     score = C.joint_plane_score(pts, w, c, fit, 0.3, bones=True)
     assert np.allclose(score, (pts - j) @ normal / (0.3 * chest.width))
-    assert score[0] < 0 < score[1]                    # 1 cm above the joint: waist in front, chest behind
+    assert score[0] < 0 < score[1]        # 1 cm above the joint: waist in front, chest behind
     axes = C.joint_plane_score(pts, w, c, fit, 0.3)
     assert np.allclose(axes, (pts[:, 2] - 1.2) / (0.3 * chest.width))
     joints["pelvis"] = np.array([0, -0.5, 0.95])
-    off = C.joint_plane_score(pts, w, c, BodyFit(sections=fit.sections, joints=joints), 0.3, bones=True)
+    moved = BodyFit(sections=fit.sections, joints=joints)
+    off = C.joint_plane_score(pts, w, c, moved, 0.3, bones=True)
     assert np.allclose(off, axes)
 
 
@@ -304,8 +305,8 @@ def test_shoulder_plane_tilts_toward_the_midline():
     normal = np.array([1.0, 0, -1.0]) / np.sqrt(2)                # down, tilted 45 deg outward
     assert np.allclose(tilted, (pts - shoulder) @ normal / (0.3 * arm.width))
     assert tilted[1] < 0 < tilted[0]
-    out = SectionShape("upper_arm_l", shoulder, [0.5, 0, 1.40], [0.045, 0.045], [0, 0, 1.0])  # T-pose
-    fit_t = BodyFit(sections={"chest": chest, "upper_arm_l": out}, joints=joints)
+    out = SectionShape("upper_arm_l", shoulder, [0.5, 0, 1.40], [0.045, 0.045], [0, 0, 1.0])
+    fit_t = BodyFit(sections={"chest": chest, "upper_arm_l": out}, joints=joints)     # T-pose
     q = shoulder + np.array([[0.02, 0, 0.03], [0.02, 0, -0.03]])
     assert np.allclose(C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True, side_tilt=1.0),
                        C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True))

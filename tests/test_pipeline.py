@@ -260,9 +260,9 @@ KNOWN: dict = {}
 BRIDGING_ABOVE = {"woman_standing": 0.008}
 
 
-#: Postures below the issue's 95 % "truth among labels", with their floor: none (the lowest, seated,
-#: measured 0.9503, loses most at the bent chest-waist joint and at the hips, joint rule, 0.5 % each;
-#: see ``python -m benchmarks.recon_table --bodies seated``).
+#: Postures below the issue's 95 % "truth among labels", with their floor: none (the lowest,
+#: seated, measured 0.9503, loses most at the bent chest-waist joint and at the hips, joint rule,
+#: 0.5 % each; see ``python -m benchmarks.recon_table --bodies seated``).
 BELOW_95: dict = {}
 
 
