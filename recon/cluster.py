@@ -6,10 +6,13 @@ The steps, each usable alone:
 2. `simple_clustering`: a point joins every section whose surface is nearer than T_d (the baseline).
 3. `refine_by_distance`: per (theta, h) cell of a section, an Otsu threshold on r splits two peaks
    and keeps the smaller-r one, unless the cell is single-peaked (the T_n test).
-4. `adopt_unlabeled`, `reduce_to_two`, `resolve_two_sections`, `resolve_joints`: settle the points
-   left in no section, in three or more, and in two sections (paper section 3.2). Where the paper
-   is silent (documented on `recon.params.ClusterParams`): the three-or-more rule never drops the
-   surface a point lies on; the joint rule's fronts are weighed with the model's joint plane
+4. `adopt_unlabeled`, `claim_across_joints`, `reduce_to_two`, `resolve_two_sections`,
+   `resolve_joints`: settle the points left in no section, in one section across a joint, in
+   three or more, and in two sections (paper section 3.2). Where the paper is silent (documented
+   on `recon.params.ClusterParams`): a point claimed by one section only, inside the column of
+   the adjacent one and on its side of their joint plane, goes to it; the three-or-more rule
+   never drops the surface a point lies on; the joint rule's fronts are weighed with the model's
+   joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
    shoulder).
@@ -448,9 +451,55 @@ def resolve_two_sections(member, points, r, rows, A, B, radius, tree, *, max_rou
 SIDE_JOINT = 0.7
 
 
+#: The joints at the far ends of the bones that meet at an end joint: {joint: (the proximal
+#: section's other joint, the distal section's other joint)}.
+BONE_ENDS = {"chest": ("pelvis", "neck"), "neck": ("chest", "head"),
+             "elbow_l": ("shoulder_l", "wrist_l"), "elbow_r": ("shoulder_r", "wrist_r"),
+             "knee_l": ("hip_l", "ankle_l"), "knee_r": ("hip_r", "ankle_r")}
+
+#: A bone further than this from its section's axis (degrees) is not used (a misplaced joint).
+BONE_MAX_ANGLE = 45.0
+
+
+def _bone(fit: BodyFit, a: str, b: str, axis: np.ndarray) -> np.ndarray:
+    """(3,) unit direction from joint ``a`` to joint ``b`` of ``fit``, or ``axis`` (unit, pointing
+    the same way) when a joint is missing or the bone lies more than `BONE_MAX_ANGLE` from it."""
+    if not fit.joints or a not in fit.joints or b not in fit.joints:
+        return axis
+    v = np.asarray(fit.joints[b], dtype=float) - np.asarray(fit.joints[a], dtype=float)
+    n = np.linalg.norm(v)
+    if n < 1e-6 or (v / n) @ axis < np.cos(np.radians(BONE_MAX_ANGLE)):
+        return axis
+    return v / n
+
+
+#: The joint toward the body's midline from each side joint (the other side's; the second if the
+#: first is missing).
+_MIDLINE = {"shoulder_l": ("shoulder_r", "neck"), "shoulder_r": ("shoulder_l", "neck"),
+            "hip_l": ("hip_r", "pelvis"), "hip_r": ("hip_l", "pelvis")}
+
+
+def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
+                     tilt: float) -> np.ndarray:
+    """(3,) unit normal ``away - tilt * inward``: ``away`` (unit, the limb's axis) tilted toward
+    the body's midline, ``inward`` the unit direction from the joint ``j`` to the midline joint
+    (`_MIDLINE`) across ``away``. ``away`` unchanged where no midline joint is known or the limb
+    points along the line to it (less than 0.3 of that line across the limb: a T-pose's arm)."""
+    names = [n for n in _MIDLINE.get(joint, ()) if fit.joints and n in fit.joints]
+    if not names:
+        return away
+    to_mid = np.asarray(fit.joints[names[0]], dtype=float) - j
+    inward = to_mid - (to_mid @ away) * away
+    if np.linalg.norm(inward) < 0.3 * np.linalg.norm(to_mid):
+        return away
+    normal = away - tilt * inward / np.linalg.norm(inward)
+    return normal / np.linalg.norm(normal)
+
+
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
-                      overlap_middle: bool = True) -> np.ndarray:
+                      overlap_middle: bool = True, bones: bool = False,
+                      side_tilt: float = 0.0) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -487,6 +536,20 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Planes at the side joints beside P's column (default: none at side joints).
     overlap_middle : bool
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
+    bones : bool
+        At the end joints (`BONE_ENDS`: chest, neck, elbows, knees), the directions of the bones
+        from the fit's joints instead of the columns' axes: P's from its other joint to the joint,
+        D's from the joint to its other joint (each only within `BONE_MAX_ANGLE` of the axis).
+        The body file's sections are where the skinning weights change bones, and the bones run
+        between the joints; a column's axis runs through the middle of the flesh, which can lean
+        away from the bone (the spine lies at the back of the torso and the waist's column,
+        fitted to the belly and the buttocks, stands more upright than the lumbar spine).
+    side_tilt : float
+        At the side joints beside P's column (``side_planes``: the shoulders, and an estimated hip
+        level with the waist's lower end), the plane's normal is tilted toward the body's midline
+        by this (the tangent of the tilt; `_tilt_to_midline`): the body file's upper arm
+        includes the deltoid, which caps the joint from outside, while the chest reaches below
+        the joint on the armpit's side; the boundary is high outside and low inside.
     """
     out = np.zeros(len(points))
     for (p, d), joint in ADJACENT.items():
@@ -502,23 +565,27 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
             if not (side_planes and 0.0 <= along <= P.length):
                 continue  # a side joint beyond P's end (hips): no plane
-            # beside P's column (shoulders): D's cross-section through the joint
-            score = np.clip((points[sel] - j) @ away / (reach * D.width), -1.0, 1.0)
+            # beside P's column (shoulders): D's cross-section through the joint, tilted
+            normal = _tilt_to_midline(fit, joint, j, away, side_tilt) if side_tilt > 0 else away
+            score = np.clip((points[sel] - j) @ normal / (reach * D.width), -1.0, 1.0)
             # only along D's column: beyond its end (its cap, a capsule's dome) the plane says nothing
             h = (points[sel] - (D.start if at_start else D.end)) @ away
             out[sel] = np.where(h >= 0, score, 0.0)
             continue
         toward = P.axis if along > P.length / 2 else -P.axis
+        origin = D.start if at_start else D.end
+        overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
+        if bones and joint in BONE_ENDS:  # the body file's bones, from the joints
+            toward = _bone(fit, BONE_ENDS[joint][0], joint, toward)
+            away = _bone(fit, joint, BONE_ENDS[joint][1], away)
         normal = toward + away
         n = np.linalg.norm(normal)
         normal = normal / n if n > 1e-3 else away
-        origin = D.start if at_start else D.end
         beyond = (j - origin) @ toward / D.width   # the joint lies this far past D's end, widths
         if beyond > mitre_band:
             normal = toward
         elif beyond < -mitre_band:
             normal = away
-        overlap = ((P.end if along > P.length / 2 else P.start) - origin) @ toward
         if overlap > 0 and overlap_middle:  # the columns overlap along P's axis: its middle
             origin = origin + 0.5 * overlap * toward
         out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
@@ -527,7 +594,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False, overlap_middle=True):
+                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -601,7 +668,8 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                              np.where(np.isinf(f_p), 1.0, np.where(np.isinf(f_d), -1.0,
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
-                                                           mitre_band, side_planes, overlap_middle)
+                                                           mitre_band, side_planes, overlap_middle,
+                                                           bones, side_tilt)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -620,9 +688,71 @@ for (_p, _d) in ADJACENT:
     _PROXIMAL[_i, _j] = _PROXIMAL[_j, _i] = _i
 
 
+def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
+                        fit: BodyFit, reach: float = 0.5,
+                        params: ClusterParams = ClusterParams()) -> np.ndarray:
+    """Points claimed by one section alone but lying in the adjacent one go to it (paper silent).
+
+    The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
+    Where the body narrows or slopes inside a section's column near a joint, its surface lies
+    deeper inside that column than T_d: the base of the neck and the slope of the trapezius inside
+    the chest's column (the body file's chest reaches the neck joint; only the head's start cap,
+    around the neck joint, claims them), the back of the knee inside the lower leg's column. Such
+    a point is claimed by the adjacent section only, on the wrong side of their joint. A point
+    claimed by one section S alone, lying inside the column of a section T adjacent to S
+    (``r_T < 0``, within T's axial extent) and on T's side of their joint plane
+    (`joint_plane_score`, within ``reach`` widths of the distal section) goes to T instead. Side
+    joints without a plane (the hips) and points beyond the distal column's end at the shoulders
+    (score 0) are left alone.
+
+    Parameters
+    ----------
+    member : (n, 11) bool
+    points : (n, 3) float, metres
+    r, h : (n, 11) float
+        From `section_coordinates`.
+    fit : BodyFit
+    reach : float
+        Widths of the distal section: how far from the joint plane a point may lie.
+    params : ClusterParams
+        For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
+        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``).
+
+    Returns
+    -------
+    member : (n, 11) bool
+        A copy; the moved points are in T only.
+    """
+    out = member.copy()
+    single = member.sum(axis=1) == 1
+    for (p, d) in ADJACENT:
+        if p not in fit.sections or d not in fit.sections:
+            continue
+        ip, idd = SECTIONS.index(p), SECTIONS.index(d)
+        for src, dst, sign in ((idd, ip, -1.0), (ip, idd, 1.0)):
+            T = fit.sections[SECTIONS[dst]]
+            with np.errstate(invalid="ignore"):
+                cand = np.flatnonzero(single & member[:, src] & (r[:, dst] < 0) & (h[:, dst] >= 0)
+                                      & (h[:, dst] <= T.length))
+            if len(cand) == 0:
+                continue
+            s = sign * joint_plane_score(points[cand], np.full(len(cand), ip),
+                                         np.full(len(cand), idd), fit, reach, params.mitre_band,
+                                         params.side_joint_planes,
+                                         params.joint_plane_overlap_middle,
+                                         params.joint_plane_bones, params.side_plane_tilt)
+            go = cand[(s > 0) & (s < 1)]
+            out[go, src] = False
+            out[go, dst] = True
+    return out
+
+
 def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray, fit: BodyFit,
                  params: ClusterParams = ClusterParams(), tree=None, radius: float | None = None) -> np.ndarray:
     """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
+
+    First (paper silent), points claimed by one section alone across a joint go to the adjacent
+    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0).
 
     Parameters
     ----------
@@ -646,6 +776,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
+    if params.claim_across_joints > 0:
+        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params)
     out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
                         keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)
@@ -662,7 +794,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        if params.neighbor_radius == 0 else params.seam_width * radius / 3.0,
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
-                       overlap_middle=params.joint_plane_overlap_middle)
+                       overlap_middle=params.joint_plane_overlap_middle,
+                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt)
     return out
 
 

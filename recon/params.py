@@ -118,6 +118,44 @@ class ClusterParams:
         among labels / min 1/m-scored accuracy): always the mitre (inf, before) 0.952 / 0.895,
         0.05 -> 0.955 / 0.909, 0.1 -> 0.955 / 0.909, 0.3 -> 0.954 / 0.903; no posture worse,
         spurious and bridging unchanged (squat 0.910 -> 0.923, its waist>chest loss 3.1 -> 2.3 %).
+    joint_plane_bones : bool
+        Joint plane at the end joints (chest, neck, elbows, knees): the bones' directions from the
+        fit's joints instead of the columns' axes (paper silent; see
+        `recon.cluster.joint_plane_score`). The body file's sections change where the skinning
+        changes bones; the estimated waist's column stands more upright than the lumbar spine (the
+        chest joint lies behind the pelvis joint), and its plane cut the front of the chest too
+        low: truth waist labelled chest at the front, truth chest labelled waist at the back.
+        Measured (21 shipped postures, `paper` scans, the clustering alone on the same fits, with
+        ``claim_across_joints``; mean truth among labels): oracle posture 0.9690 both (its axes
+        run between the joints); estimated posture False 0.9516, True 0.9537 (the 13
+        average_male postures 0.9509 -> 0.9533, the other 8 0.9526 -> 0.9543); only P's bone
+        and only where the plane is P's cross-section (the chest joint), 0.9527.
+    side_plane_tilt : float
+        The shoulders' plane (``side_joint_planes``), the arm's cross-section through the joint,
+        is tilted toward the body's midline by this (the tangent of the tilt; paper silent; see
+        `recon.cluster.joint_plane_score`): the body file's upper arm includes the deltoid, which
+        caps the joint from outside, and its chest reaches below the joint on the armpit's side.
+        Chosen on the 13 average_male postures (`paper` scans, the clustering alone on the same
+        fits; mean truth among labels, oracle / estimated posture): 0 -> 0.9674 / 0.9533; 0.4 ->
+        0.9689 / 0.9538; 0.5 -> 0.9691 / 0.9539; 0.7 -> 0.9694 / 0.9540; 1 -> 0.9697 / 0.9543;
+        1.5 -> 0.9698 / 0.9543; 2 -> 0.9698 / 0.9542; 3 -> 0.9697 / 0.9537; through a point 0.1
+        arm widths above or below the joint instead, at 0.6: 0.9692 / 0.9537, 0.9685 / 0.9541.
+        (This sweep without the guard of `recon.cluster._tilt_to_midline` against arms along the
+        shoulder line; with it, at 1: 0.9700 / 0.9546.) The other 8 postures (not used to
+        choose), 0 -> 1: 0.9716 -> 0.9726 / 0.9543 -> 0.9555.
+    claim_across_joints : float
+        A point claimed by one section alone, inside the column of an adjacent section and on that
+        section's side of their joint plane (within this many widths of the distal section), goes
+        to the adjacent section (paper silent; 0: off; see `recon.cluster.claim_across_joints`).
+        The T_d shell misses the body where it lies deeper than T_d inside a column near a joint:
+        the base of the neck and the trapezius inside the chest's column are claimed by the head
+        alone (truth chest, labelled head: 0.3-0.7 % of the points of every adult body, oracle
+        posture), likewise around the knees. Measured (21 shipped postures, `paper` scans, the
+        clustering alone on the same fits; mean truth among labels, oracle / estimated posture):
+        off 0.9589 / 0.9502; 0.25 -> 0.9688 / 0.9509; 0.5 -> 0.9690 / 0.9516; 1 and 2 -> 0.9690 /
+        0.9517 (chosen 0.5: the same gain, a bounded neighbourhood of the joint). Moving the points
+        after the joint rule instead of before it (their fronts unchanged) gained less: 0.9655 /
+        0.9514. Only at the neck: 0.9652 / 0.9510; only at the knees: 0.9627 / 0.9509.
     max_rounds : int
         Rounds of the three-or-more rule, of the two-section rule and of label adoption before
         the remaining points are settled by their distance to the model (paper silent; the joint
@@ -144,6 +182,9 @@ class ClusterParams:
     mitre_band: float = 0.1          # paper silent (chosen: see above), widths
     side_joint_planes: bool = True  # paper silent (chosen: see above)
     three_keep_nearest: float = 0.1  # paper silent (chosen: see above)
+    claim_across_joints: float = 0.5  # paper silent (chosen: see above), widths
+    joint_plane_bones: bool = True   # paper silent (chosen: see above)
+    side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
 
@@ -160,6 +201,9 @@ class ClusterParams:
         _check(self.joint_reach > 0, "joint_reach", self.joint_reach, "> 0")
         _check(self.joint_plane_weight >= 0, "joint_plane_weight", self.joint_plane_weight, ">= 0")
         _check(self.mitre_band >= 0, "mitre_band", self.mitre_band, ">= 0 widths")
+        _check(self.side_plane_tilt >= 0, "side_plane_tilt", self.side_plane_tilt, ">= 0")
+        _check(self.claim_across_joints >= 0, "claim_across_joints", self.claim_across_joints,
+               ">= 0 widths")
         _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")
 
 

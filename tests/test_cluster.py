@@ -237,3 +237,76 @@ def test_joint_plane_splits_an_overlap_of_the_columns_in_its_middle():
     pts = np.column_stack([np.full(5, 0.045), np.zeros(5), z])
     score = C.joint_plane_score(pts, np.full(5, I["upper_arm_l"]), np.full(5, I["forearm_l"]), fit, 0.3)
     assert np.allclose(score, np.clip((1.10 - z) / (0.3 * fore.width), -1, 1))
+
+
+def test_a_point_claimed_across_the_neck_goes_to_the_column_it_lies_in():
+    """The base of the neck inside the chest's column, deeper than T_d: only the head's start cap
+    claims it. It lies below the neck plane, inside the chest: it goes to the chest. A point above
+    the plane, and one further below it than the reach, keep the head."""
+    neck = np.array([0, 0, 1.45])
+    chest = SectionShape("chest", [0, 0, 1.15], neck, [0.15, 0.10], X)
+    head = SectionShape("head", neck, [0, 0, 1.65], [0.05, 0.05], X)
+    fit = BodyFit(sections={"chest": chest, "head": head}, joints={"neck": neck})
+    P = np.array([[0.05, 0, 1.42], [0.05, 0, 1.47], [0.05, 0, 1.38]])
+    r, _, h = C.section_coordinates(P, fit)
+    m = C.simple_clustering(r, C.section_widths(fit), 0.3)
+    assert m[0, I["head"]] and not m[0, I["chest"]]             # the T_d shell misses the chest
+    m[:, I["head"]], m[:, I["chest"]] = True, False                  # all three claimed by the head
+    out = C.claim_across_joints(m, P, r, h, fit, reach=0.5)          # reach 0.5 * 0.1 m = 5 cm
+    assert out[0].nonzero()[0].tolist() == [I["chest"]]
+    assert out[1].nonzero()[0].tolist() == [I["head"]]
+    assert out[2].nonzero()[0].tolist() == [I["head"]]
+    # outside the chest's column (beside it): not the chest's
+    side = np.array([[0.16, 0, 1.42]])
+    rs, _, hs = C.section_coordinates(side, fit)
+    ms = np.zeros((1, 11), bool)
+    ms[0, I["head"]] = True
+    assert C.claim_across_joints(ms, side, rs, hs, fit, reach=0.5)[0, I["head"]]
+
+
+def test_joint_plane_follows_the_bones_between_the_joints():
+    """An upright waist column whose spine (pelvis -> chest joint) leans back 21.8 degrees: with
+    ``bones`` the plane's normal bisects the spine and the chest's bone, not the columns' axes; a
+    joint placed far off its column (a bone 63 degrees from the axis) is not used."""
+    j = np.array([0, 0, 1.2])
+    waist = SectionShape("waist", j, [0, 0, 0.95], [0.15, 0.1], X)
+    chest = SectionShape("chest", j, [0, 0, 1.5], [0.15, 0.1], X)
+    joints = {"pelvis": np.array([0, -0.1, 0.95]), "chest": j, "neck": np.array([0, 0, 1.5])}
+    fit = BodyFit(sections={"waist": waist, "chest": chest}, joints=joints)
+    pts = j + np.array([[0, -0.1, 0.01], [0, 0.1, 0.01], [0, 0, -0.02]])
+    w, c = np.full(3, I["waist"]), np.full(3, I["chest"])
+    spine = np.array([0, 0.1, 0.25]) / np.hypot(0.1, 0.25)
+    normal = (spine + [0, 0, 1]) / np.linalg.norm(spine + [0, 0, 1])
+    score = C.joint_plane_score(pts, w, c, fit, 0.3, bones=True)
+    assert np.allclose(score, (pts - j) @ normal / (0.3 * chest.width))
+    assert score[0] < 0 < score[1]        # 1 cm above the joint: waist in front, chest behind
+    axes = C.joint_plane_score(pts, w, c, fit, 0.3)
+    assert np.allclose(axes, (pts[:, 2] - 1.2) / (0.3 * chest.width))
+    joints["pelvis"] = np.array([0, -0.5, 0.95])
+    moved = BodyFit(sections=fit.sections, joints=joints)
+    off = C.joint_plane_score(pts, w, c, moved, 0.3, bones=True)
+    assert np.allclose(off, axes)
+
+
+def test_shoulder_plane_tilts_toward_the_midline():
+    """A hanging arm: with the tilt, a point outside and above the joint (the deltoid) scores for
+    the arm, a point inside and below it (the chest beside the armpit) for the chest; an arm held
+    out along the shoulder line keeps the plain cross-section."""
+    shoulder = np.array([0.2, 0, 1.40])
+    chest = SectionShape("chest", [0, 0, 1.15], [0, 0, 1.45], [0.15, 0.10], X)
+    arm = SectionShape("upper_arm_l", shoulder + [0, 0, 0.04], [0.2, 0, 1.10], [0.045, 0.045], X)
+    joints = {"shoulder_l": shoulder, "shoulder_r": np.array([-0.2, 0, 1.40])}
+    fit = BodyFit(sections={"chest": chest, "upper_arm_l": arm}, joints=joints)
+    pts = shoulder + np.array([[0.04, 0, 0.02], [-0.04, 0, -0.02]])
+    c, a = np.full(2, I["chest"]), np.full(2, I["upper_arm_l"])
+    plain = C.joint_plane_score(pts, c, a, fit, 0.3, side_planes=True)
+    assert plain[0] < 0 < plain[1]
+    tilted = C.joint_plane_score(pts, c, a, fit, 0.3, side_planes=True, side_tilt=1.0)
+    normal = np.array([1.0, 0, -1.0]) / np.sqrt(2)                # down, tilted 45 deg outward
+    assert np.allclose(tilted, (pts - shoulder) @ normal / (0.3 * arm.width))
+    assert tilted[1] < 0 < tilted[0]
+    out = SectionShape("upper_arm_l", shoulder, [0.5, 0, 1.40], [0.045, 0.045], [0, 0, 1.0])
+    fit_t = BodyFit(sections={"chest": chest, "upper_arm_l": out}, joints=joints)     # T-pose
+    q = shoulder + np.array([[0.02, 0, 0.03], [0.02, 0, -0.03]])
+    assert np.allclose(C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True, side_tilt=1.0),
+                       C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True))
