@@ -21,8 +21,10 @@ the air; with ``fold_cos`` set, the long triangles that are flipped against thei
 removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's
 boundary inwards (Delaunay's convex-hull slivers), `merge_sections` joins the sections through
 their shared points and removes the triangles made only of multi-section points (paper 3.3),
-`seen_through` removes the triangles that a camera ray crossed in front of its point (free
-space, ``carve_margin``), and `orient_faces` turns every triangle outward.
+`view_consistency` removes the long triangles that face away from the camera of one of their
+vertices (points seen from opposite sides joined across a gap, ``facing_cos``), `seen_through`
+removes the triangles that a camera ray crossed in front of its point (free space,
+``carve_margin``), and `orient_faces` turns every triangle outward.
 """
 
 from __future__ import annotations
@@ -545,6 +547,37 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
     return out
 
 
+def view_consistency(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray) -> np.ndarray:
+    """(k,) how well each triangle faces the cameras that measured its vertices: the larger, over
+    the triangle's two orientations, of the smallest cosine between its unit normal and its
+    vertices' viewing directions.
+
+    A point is measured only where the surface faces its camera, so a triangle of real surface,
+    which approximates the surface at each of its vertices, faces every one of its vertices'
+    cameras, up to the turn of the surface across the triangle (the value is positive, or a little
+    below 0 where the triangle turns around a silhouette). A triangle joining a point seen from
+    the front to one seen from behind across a gap (thighs, armpit, a forearm beside the hip)
+    faces away from one of them whichever way it is turned: the value is well below 0.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+    view_dir : (n, 3) or (3,) float
+        Unit direction from each point toward its camera (one for all: every triangle faces it
+        one way or the other, the value is >= 0).
+    """
+    if len(faces) == 0:
+        return np.zeros(0)
+    p = points[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    vd = np.asarray(view_dir, dtype=np.float64)
+    d = vd[faces] if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3, 3))
+    c = np.einsum("ikj,ij->ik", d, n)
+    return np.maximum(c.min(axis=1), -c.max(axis=1))
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -601,7 +634,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         Remove triangles made only of points in several sections (see `merge_sections`) and,
         with ``params.open_joint_ends``, leave open the ends where a child section continues
         (both keep the inside of the body out of the surface); also apply the fold rule
-        (``params.fold_cos``) and the free-space carving (``params.carve_margin``). False (the
+        (``params.fold_cos``), the view consistency (``params.facing_cos``) and the free-space
+        carving (``params.carve_margin``). False (the
         simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
@@ -657,6 +691,11 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
+        faces, sec = faces[keep], sec[keep]
+    if drop_inner and params.facing_cos > -1 and view_dir is not None:
+        long_ = np.flatnonzero(max_edge_length(points, faces) > params.facing_min_edge * spacing)
+        keep = np.ones(len(faces), dtype=bool)
+        keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
         faces, sec = faces[keep], sec[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,

@@ -266,3 +266,35 @@ def test_carving_keeps_a_convex_capsule_whole():
     on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.1, carve_min_edge=0.0), vd)[0]
     off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.0), vd)[0]
     assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
+
+
+def test_view_consistency_flags_triangles_facing_away_from_a_camera():
+    """Front camera -y, rear camera +y. A triangle of the front surface faces its cameras (+1); an
+    edge-on triangle at a silhouette, vertices seen from both sides, is on the limit (0); a triangle
+    from two front points of one thigh to a rear point of the other, tilted 45 degrees, faces away
+    from one camera whichever way it is turned (-0.71); one camera for all: never below 0."""
+    P = np.array([[0.00, -0.05, 0.00], [0.02, -0.05, 0.00], [0.00, -0.05, 0.02],    # front sheet
+                  [0.05, -0.01, 0.00], [0.05, 0.01, 0.00], [0.05, 0.00, 0.02],      # silhouette
+                  [0.00, 0.00, 0.00], [0.00, 0.00, 0.03], [0.03, 0.03, 0.01]])       # across a gap
+    vd = np.array([[0, -1, 0]] * 3 + [[0, -1, 0], [0, 1, 0], [0, -1, 0]] + [[0, -1, 0]] * 2 + [[0, 1, 0]],
+                  dtype=float)
+    faces = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    c = S.view_consistency(P, faces, vd)
+    assert np.allclose(c, [1.0, 0.0, -np.sqrt(0.5)])
+    assert np.allclose(S.view_consistency(P, faces[::-1, ::-1], vd), c[::-1])   # orientation-free
+    assert (S.view_consistency(P, faces, np.array([0.0, -1.0, 0.0])) >= 0).all()
+
+
+def test_view_consistency_keeps_a_convex_capsule_seen_front_and_rear_whole():
+    """Every point of a convex capsule seen by the front or the rear camera, whichever faces it:
+    the triangles around its silhouettes turn with the surface and are kept, nothing is removed."""
+    P = capsule_points()
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": shape}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:, SECTIONS.index("thigh_l")] = True
+    vd = np.column_stack([np.zeros(len(P)), np.where(P[:, 1] >= 0, 1.0, -1.0), np.zeros(len(P))])
+    base = dict(carve_margin=0.0, workers=1)
+    on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(facing_min_edge=0.0, **base), vd)[0]
+    off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(facing_cos=-1.0, **base), vd)[0]
+    assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
