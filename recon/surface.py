@@ -469,7 +469,8 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
 
 def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
                  margin: float = 0.5, min_edge: float = 2.0, reach: float = 1.0, min_rays: int = 1,
-                 tree=None, workers: int = 1, chunk: int = 200000) -> np.ndarray:
+                 tree=None, workers: int = 1, chunk: int = 200000,
+                 longest: np.ndarray | None = None) -> np.ndarray:
     """(k,) bool: faces that the sensor saw through (free-space evidence).
 
     Every point was measured along a ray from the point toward its camera (``view_dir``), and
@@ -503,13 +504,16 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
         Threads of the neighbour query (speed only).
     chunk : int
         Pairs of (triangle, point) tested at a time (memory only).
+    longest : (k,) float, optional
+        `max_edge_length` of ``faces``, if already computed (speed only).
     """
     from scipy.spatial import cKDTree
 
     out = np.zeros(len(faces), dtype=bool)
     if len(faces) == 0 or view_dir is None:
         return out
-    cand = np.flatnonzero(max_edge_length(points, faces) > min_edge * spacing)
+    longest = max_edge_length(points, faces) if longest is None else longest
+    cand = np.flatnonzero(longest > min_edge * spacing)
     if len(cand) == 0:
         return out
     v = points[faces[cand]]
@@ -692,15 +696,16 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
         faces, sec = faces[keep], sec[keep]
+    longest = max_edge_length(points, faces) if drop_inner and view_dir is not None else None
     if drop_inner and params.facing_cos > -1 and view_dir is not None:
-        long_ = np.flatnonzero(max_edge_length(points, faces) > params.facing_min_edge * spacing)
         keep = np.ones(len(faces), dtype=bool)
+        long_ = np.flatnonzero(longest > params.facing_min_edge * spacing)
         keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
-        faces, sec = faces[keep], sec[keep]
+        faces, sec, longest = faces[keep], sec[keep], longest[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
                              params.carve_min_edge, params.carve_reach, params.carve_min_rays,
-                             workers=params.workers)
+                             workers=params.workers, longest=longest)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
