@@ -22,7 +22,10 @@ removed (`chart_agreement`). Then `peel_boundary` removes long triangles from th
 boundary inwards (Delaunay's convex-hull slivers), `merge_sections` joins the sections through
 their shared points and removes the triangles made only of multi-section points (paper 3.3),
 `view_consistency` removes the long triangles that face away from the camera of one of their
-vertices (points seen from opposite sides joined across a gap, ``facing_cos``), `seen_through`
+vertices (points seen from opposite sides joined across a gap, ``facing_cos``),
+`over_concavity` removes the long triangles whose centroid stands in front of the surface's
+tangent planes at all their vertices (covers over concave holes, ``concave_height``; covers of
+holes in convex surface, inside the body, stay as in the paper), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
 """
@@ -582,6 +585,59 @@ def view_consistency(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray
     return np.maximum(c.min(axis=1), -c.max(axis=1))
 
 
+def point_normals(points: np.ndarray, idx: np.ndarray, view_dir: np.ndarray, k: int = 12,
+                  tree=None) -> np.ndarray:
+    """(m, 3) unit normals of the surface at the points ``idx`` (m,), turned toward their cameras.
+
+    The normal is the direction of least spread of each point's ``k`` nearest points (including
+    itself), turned so that it faces the point's viewing direction (a point is measured only where
+    the surface faces its camera).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    idx : (m,) int
+    view_dir : (n, 3) or (3,) float
+        Unit directions toward the cameras.
+    k : int
+        Neighbours per point (at least 3).
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(idx) == 0:
+        return np.zeros((0, 3))
+    tree = cKDTree(points) if tree is None else tree
+    k = int(min(max(k, 3), len(points)))
+    _, nb = tree.query(points[idx], k=k)
+    q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))
+    n = vec[:, :, 0]
+    vd = np.asarray(view_dir, dtype=np.float64)
+    d = vd[idx] if vd.ndim == 2 else np.broadcast_to(vd, n.shape)
+    return n * np.where(np.einsum("ij,ij->i", n, d) < 0, -1.0, 1.0)[:, None]
+
+
+def over_concavity(points: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(k,) the smallest height (metres), over a triangle's vertices, of its centroid above the
+    surface's tangent plane at the vertex (``normals`` (k, 3, 3): the unit outward surface normal
+    at each face's vertices, e.g. `point_normals`).
+
+    A triangle of the surface lies in the tangent planes at its vertices, up to the surface's
+    curvature: behind them on a convex surface (a cover of a hole in convex surface, which the
+    paper keeps, lies inside the body), at most a fraction of an edge times the edge's turn in
+    front of them on a concave one. A triangle whose centroid stands in front of every one of its
+    vertices' tangent planes bridges a concavity: a cover over a hole in concave surface (under the
+    chin, the armpit, between the thighs), or surface spanning a gap between two parts.
+    """
+    if len(faces) == 0:
+        return np.zeros(0)
+    v = points[faces]
+    c = v.mean(axis=1)
+    return np.einsum("ikj,ikj->ik", normals, c[:, None, :] - v).min(axis=1)
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -638,8 +694,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         Remove triangles made only of points in several sections (see `merge_sections`) and,
         with ``params.open_joint_ends``, leave open the ends where a child section continues
         (both keep the inside of the body out of the surface); also apply the fold rule
-        (``params.fold_cos``), the view consistency (``params.facing_cos``) and the free-space
-        carving (``params.carve_margin``). False (the
+        (``params.fold_cos``), the view consistency (``params.facing_cos``), the concavity
+        covers (``params.concave_height``) and the free-space carving (``params.carve_margin``).
+        False (the
         simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
@@ -702,10 +759,22 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         long_ = np.flatnonzero(longest > params.facing_min_edge * spacing)
         keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
         faces, sec, longest = faces[keep], sec[keep], longest[keep]
+    tree = None
+    if drop_inner and params.concave_height > 0 and view_dir is not None:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(points)
+        long_ = np.flatnonzero(longest > params.concave_min_edge * spacing)
+        ids, inv = np.unique(faces[long_].ravel(), return_inverse=True)
+        nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)
+        keep = np.ones(len(faces), dtype=bool)
+        keep[long_] = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3)) \
+            <= params.concave_height * spacing
+        faces, sec, longest = faces[keep], sec[keep], longest[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
                              params.carve_min_edge, params.carve_reach, params.carve_min_rays,
-                             workers=params.workers, longest=longest)
+                             tree=tree, workers=params.workers, longest=longest)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
