@@ -24,7 +24,7 @@ their shared points and removes the triangles made only of multi-section points 
 `view_consistency` removes the long triangles that face away from the camera of one of their
 vertices (points seen from opposite sides joined across a gap, ``facing_cos``),
 `over_concavity` removes the long triangles whose centroid stands in front of the surface's
-tangent planes at all their vertices (covers over concave holes, ``concave_height``; covers of
+tangent planes at their vertices (covers over concave holes, ``concave_height``; covers of
 holes in convex surface, inside the body, stay as in the paper), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
@@ -620,22 +620,23 @@ def point_normals(points: np.ndarray, idx: np.ndarray, view_dir: np.ndarray, k: 
 
 
 def over_concavity(points: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(k,) the smallest height (metres), over a triangle's vertices, of its centroid above the
-    surface's tangent plane at the vertex (``normals`` (k, 3, 3): the unit outward surface normal
-    at each face's vertices, e.g. `point_normals`).
+    """(k, 3) height (metres) of each triangle's centroid above the surface's tangent plane at
+    each of its vertices (``normals`` (k, 3, 3): the unit outward surface normal at each face's
+    vertices, e.g. `point_normals`).
 
     A triangle of the surface lies in the tangent planes at its vertices, up to the surface's
     curvature: behind them on a convex surface (a cover of a hole in convex surface, which the
     paper keeps, lies inside the body), at most a fraction of an edge times the edge's turn in
-    front of them on a concave one. A triangle whose centroid stands in front of every one of its
-    vertices' tangent planes bridges a concavity: a cover over a hole in concave surface (under the
-    chin, the armpit, between the thighs), or surface spanning a gap between two parts.
+    front of them on a concave one. A triangle whose centroid stands in front of the tangent planes
+    at its vertices (at every one, or clearly on average) bridges a concavity: a cover over a hole
+    in concave surface (under the chin, the armpit, between the thighs), or surface spanning a gap
+    between two parts.
     """
     if len(faces) == 0:
-        return np.zeros(0)
+        return np.zeros((0, 3))
     v = points[faces]
     c = v.mean(axis=1)
-    return np.einsum("ikj,ikj->ik", normals, c[:, None, :] - v).min(axis=1)
+    return np.einsum("ikj,ikj->ik", normals, c[:, None, :] - v)
 
 
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
@@ -768,8 +769,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         ids, inv = np.unique(faces[long_].ravel(), return_inverse=True)
         nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)
         keep = np.ones(len(faces), dtype=bool)
-        keep[long_] = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3)) \
-            <= params.concave_height * spacing
+        lift = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3))
+        keep[long_] = ((lift.min(axis=1) <= params.concave_height * spacing)
+                       & (lift.mean(axis=1) <= params.concave_mean_height * spacing))
         faces, sec, longest = faces[keep], sec[keep], longest[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,

@@ -328,7 +328,9 @@ def test_over_concavity_sign():
         nrm = S.point_normals(P, f.ravel(), up, k=8).reshape(-1, 3, 3)
         heights.append(S.over_concavity(P, f, nrm)[0])
     lift = (0.1 / 3) * 0.6 / np.hypot(0.6, 1.0)                   # centroid 3.3 cm in from a side
-    assert np.allclose(heights, [lift, -2 * lift, 0.0], atol=1e-6)
+    assert np.allclose(heights[0], [lift, 2 * lift, lift], atol=1e-6)
+    assert np.allclose(heights[1], [-lift, -2 * lift, -lift], atol=1e-6)
+    assert np.allclose(heights[2], 0.0, atol=1e-6)
 
 
 def test_concave_rule_keeps_the_cover_of_a_hole_in_convex_surface():
