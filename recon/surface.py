@@ -49,10 +49,13 @@ TWO_PI = 2 * np.pi
 SEAM_SPACINGS = 10.0
 
 
-def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=None) -> float:
-    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point
-    (over a seeded sample of ``sample`` points when there are more; ``tree``: a
-    `scipy.spatial.cKDTree` of ``points``, if already built)."""
+def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=None,
+                   repeats: int = 4) -> float:
+    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point at
+    another position (over a seeded sample of ``sample`` points when there are more; ``tree``: a
+    `scipy.spatial.cKDTree` of ``points``, if already built). Repeated points (heads whose fields
+    overlap measure the same grid position twice) are skipped, up to ``repeats`` copies of a
+    point; a point with more copies does not count."""
     from scipy.spatial import cKDTree
 
     if len(points) < 2:
@@ -60,8 +63,11 @@ def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=
     q = points
     if len(points) > sample:
         q = points[np.random.default_rng(seed).choice(len(points), sample, replace=False)]
-    d, _ = (tree if tree is not None else cKDTree(points)).query(q, k=2)
-    return float(np.median(d[:, 1]))
+    k = int(min(repeats + 1, len(points)))
+    d, _ = (tree if tree is not None else cKDTree(points)).query(q, k=k)
+    d = np.where(d[:, 1:] > 0, d[:, 1:], np.inf).min(axis=1)
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if len(d) else 0.0
 
 
 def max_edge_length(points: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -350,3 +350,12 @@ def test_concave_rule_keeps_the_cover_of_a_hole_in_convex_surface():
     longest = S.max_edge_length(P, off)
     assert longest.max() > 4 * S.median_spacing(P)                 # the hole is covered ...
     assert S.face_keys(on).tolist() == S.face_keys(off).tolist()   # ... and stays covered
+
+
+def test_median_spacing_skips_repeated_points():
+    """Heads whose fields overlap can measure the same position twice: the spacing is that of the
+    distinct positions (a 1 cm grid), not 0, which would make every triangle "long"."""
+    g = np.stack(np.meshgrid(np.arange(0, 0.3, 0.01), np.arange(0, 0.3, 0.01)), -1).reshape(-1, 2)
+    P = np.column_stack([g, np.zeros(len(g))])
+    assert np.isclose(S.median_spacing(P), 0.01)
+    assert np.isclose(S.median_spacing(np.vstack([P, P, P])), 0.01)
