@@ -703,8 +703,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         (both keep the inside of the body out of the surface); also apply the fold rule
         (``params.fold_cos``), the view consistency (``params.facing_cos``), the concavity
         covers (``params.concave_height``) and the free-space carving (``params.carve_margin``).
-        False (the
-        simple baseline): the paper's surface.
+        False (the simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
 
