@@ -304,6 +304,68 @@ class SurfaceParams:
         woman_standing, squat; oracle posture) carving with 1 ray still lowers bridging 1.43 ->
         1.12 % and spurious 0.071 -> 0.067, for 0.2 % of the good area (1.3118 -> 1.3093 m^2);
         with 2 rays 1.34 %, no area lost: raise it for clouds with many stray points.
+    facing_cos, facing_min_edge : float
+        View consistency (paper: none; ``facing_cos = -1`` switches it off; ``proposed`` only):
+        a point is measured only where the surface faces its camera, so a triangle of real
+        surface faces the camera of each of its vertices, up to the surface's turn across the
+        triangle. A triangle that, turned either way, has a cosine below ``facing_cos`` with the
+        viewing direction of one of its vertices (`recon.surface.view_consistency`) joins points
+        seen from opposite sides across a gap (a forearm beside the hip, touching thighs, across
+        an armpit) and is removed when its longest edge is also longer than ``facing_min_edge``
+        spacings (shorter ones turn around a thin part's rim: fingers, silhouettes; a convex
+        capsule's lowest value is about -0.14). One viewing direction for all points: no effect.
+        (chosen) Measured on the 21 shipped postures with the fold and carving rules (`paper`
+        scans, front and rear heads; mean bridging, postures under 0.5 %, max / mean spurious /
+        mean area neither spurious nor bridging, m^2 / boundary edges): estimated posture: off
+        0.497 %, 11/21, 1.00 % / 0.0389 / 1.4028 / 2.82 %; -0.4 with 2 spacings: 0.383 %, 16/21,
+        0.76 % / 0.0303 / 1.4012 / 3.19 %; -0.5 with 2.5: 0.417 %, 13/21, 0.84 % / 0.0328 / 1.4022;
+        -0.6 with 2.5: 0.427 %, 13/21 / 0.0340 / 1.4025; -0.5 with 2: 0.411 %, 13/21 / 1.4019.
+        Oracle posture: off 0.277 %, 20/21, 0.66 % / 0.0329 / 1.4542 / 3.15 %; -0.4 with 2:
+        0.209 %, 20/21, 0.63 % / 0.0266 / 1.4525 / 3.45 %. Applied inside each section before
+        the hull peel (so that the peel goes on through the opened holes) it gave 0.316 %, 18/21,
+        but took 1.7 % of the good area (1.3783 m^2): the peel then opens the paper's covered holes.
+        With the concavity rules below on (estimated posture): off 0.340 %, 19/21, 0.70 % / 0.0379
+        / 1.4022; -0.6 with 2.5: 0.291 %, 19/21 / 1.4019; -0.5 with 2: 0.278 %, 20/21, 0.53 % /
+        1.4013; -0.4 with 2: 0.255 %, 21/21, 0.45 % / 0.0295 / 1.4006. With 1 % outliers
+        (``outlier_fraction=0.01``; standing, hands_on_hips, seated, woman_standing, squat,
+        arms_close; oracle posture) a stray vertex has its camera but not the surface's position:
+        the rule alone lowers bridging 1.054 -> 1.009 % for 0.2 % of the good area (1.3342 ->
+        1.3314 m^2); the concavity rules alone 1.054 -> 0.780 % for 0.06 %; both 0.756 %, 1.3306.
+    concave_height, concave_mean_height, concave_min_edge : float
+        Covers of concavities (paper: none; ``concave_height = 0`` switches it off; ``proposed``
+        only): a triangle of surface lies in the surface's tangent planes at its vertices, up to
+        the curvature: a cover of a hole in convex surface lies behind them, inside the body (the
+        paper's hole covering, kept). A triangle whose centroid stands more than
+        ``concave_height`` spacings in front of the tangent plane at every one of its vertices,
+        or more than ``concave_mean_height`` in front of them on average
+        (`recon.surface.over_concavity`; normals from `recon.surface.point_normals`, turned
+        toward the cameras), bridges a concavity: the flat cover over a hole in concave surface
+        (under the chin, behind the ears, the armpit, the thumb web) or surface across a gap; it
+        is removed when its longest edge is also longer than ``concave_min_edge`` spacings.
+    concave_neighbours : int
+        Points (with itself) whose least-spread direction is a point's normal for that rule.
+        (chosen) Measured on the 21 shipped postures after the view consistency (`paper` scans;
+        mean bridging, postures under 0.5 %, max / mean spurious / mean good area, m^2 /
+        boundary edges): estimated posture: off 0.383 %, 16/21, 0.76 % / 0.0303 / 1.4012 /
+        3.19 %; height 0.3, 8 neighbours: 0.283 %, 20/21, 0.63 % / 0.0297 / 1.4008 / 3.22 %;
+        0.4 with 12: 0.317 %, 20/21, 0.76 % / 1.4011; 0.3 with 12: 0.302 %, 0.67 %; 0.2 with 12:
+        0.290 %, 0.63 % / 1.4005; 0.2 with 8: 0.267 %, 0.63 % / 1.4003; 0.1 with 12: 0.274 %,
+        0.56 % / 1.3991 (more real surface goes); 0.6: 0.348 %, 19/21; 20 neighbours (0.4):
+        0.335 %, 18/21; min_edge 1.5 or 3 instead of 2: 0.317 or 0.321 % (at 0.4). Oracle
+        posture: 0.209 -> 0.186 %, 20/21, max 0.63 %, good 1.4525 -> 1.4523. With 1 mm range
+        noise (oracle; standing, woman_standing, arms_close, knee_raised, walking, seated):
+        0.454 -> 0.377 %, good 1.4085 -> 1.4083 m^2. Over the 21 estimated postures, the triangles
+        longer than 2 spacings standing in front of all their vertices' planes by more than 0.4
+        spacings were 211 cm^2 bridging and 18 cm^2 good surface; by 0.2 to 0.4: 80 against 114.
+        The mean (``concave_mean_height``; the min rule at 0.3 with 8 neighbours, then): off
+        0.283 %, 20/21, 0.63 % / 0.0297 / 1.4008 / 3.22 %; 0.7: 0.255 %, 21/21, 0.45 % / 0.0295 /
+        1.4006 / 3.23 %; oracle 0.186 -> 0.178 %, 20/21 (woman_standing 0.60 %), good 1.4523 ->
+        1.4520; 1 mm noise (6 postures) 0.377 -> 0.365 %, good 1.4083 -> 1.4077. The mean alone
+        (no min rule): 0.5: 0.217 %, 21/21, max 0.41 %, but good 1.3986; 0.6: 0.253 %, 20/21 /
+        1.3999; 0.7: 0.275 %, 20/21 / 1.4008; 1.0: 0.331 %, 19/21. ``concave_min_edge`` 2.5
+        instead of 2: 0.257 % instead of 0.255 %, max 0.46 %, 21/21, good 1.4006, and on the
+        1.4 mm scan of standing the triangles tested fall from 156k to 69k (of 1.05M: the
+        normals cost about 0.2 s there); 3: 0.267 %, 21/21, max 0.47 %.
     """
 
     seam_overlap: float = 0.6       # paper 3.3, radians
@@ -322,6 +384,12 @@ class SurfaceParams:
     carve_min_edge: float = 2.0     # chosen, spacings
     carve_reach: float = 1.0        # chosen, spacings
     carve_min_rays: int = 1         # chosen, see above
+    facing_cos: float = -0.4        # paper: none (-1 = off); chosen, see above
+    facing_min_edge: float = 2.0    # chosen, spacings (= carve_min_edge)
+    concave_height: float = 0.3     # paper: none (0 = off); chosen, see above, spacings
+    concave_mean_height: float = 0.7  # chosen, spacings
+    concave_min_edge: float = 2.5   # chosen, spacings (speed on dense scans, see above)
+    concave_neighbours: int = 8     # chosen, points
 
     def __post_init__(self):
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
@@ -336,6 +404,12 @@ class SurfaceParams:
         _check(self.carve_min_edge >= 0, "carve_min_edge", self.carve_min_edge, ">= 0 spacings")
         _check(self.carve_reach >= 0, "carve_reach", self.carve_reach, ">= 0 spacings")
         _check(int(self.carve_min_rays) >= 1, "carve_min_rays", self.carve_min_rays, "an integer >= 1")
+        _check(-1 <= self.facing_cos <= 1, "facing_cos", self.facing_cos, "in [-1, 1] (-1 = off)")
+        _check(self.facing_min_edge >= 0, "facing_min_edge", self.facing_min_edge, ">= 0 spacings")
+        _check(self.concave_height >= 0, "concave_height", self.concave_height, ">= 0 spacings (0 = off)")
+        _check(self.concave_mean_height >= 0, "concave_mean_height", self.concave_mean_height, ">= 0 spacings")
+        _check(self.concave_min_edge >= 0, "concave_min_edge", self.concave_min_edge, ">= 0 spacings")
+        _check(int(self.concave_neighbours) >= 3, "concave_neighbours", self.concave_neighbours, "an integer >= 3")
         _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 

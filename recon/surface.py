@@ -21,8 +21,13 @@ the air; with ``fold_cos`` set, the long triangles that are flipped against thei
 removed (`chart_agreement`). Then `peel_boundary` removes long triangles from the section's
 boundary inwards (Delaunay's convex-hull slivers), `merge_sections` joins the sections through
 their shared points and removes the triangles made only of multi-section points (paper 3.3),
-`seen_through` removes the triangles that a camera ray crossed in front of its point (free
-space, ``carve_margin``), and `orient_faces` turns every triangle outward.
+`view_consistency` removes the long triangles that face away from the camera of one of their
+vertices (points seen from opposite sides joined across a gap, ``facing_cos``),
+`over_concavity` removes the long triangles whose centroid stands in front of the surface's
+tangent planes at their vertices (covers over concave holes, ``concave_height``; covers of
+holes in convex surface, inside the body, stay as in the paper), `seen_through`
+removes the triangles that a camera ray crossed in front of its point (free space,
+``carve_margin``), and `orient_faces` turns every triangle outward.
 """
 
 from __future__ import annotations
@@ -44,10 +49,13 @@ TWO_PI = 2 * np.pi
 SEAM_SPACINGS = 10.0
 
 
-def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=None) -> float:
-    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point
-    (over a seeded sample of ``sample`` points when there are more; ``tree``: a
-    `scipy.spatial.cKDTree` of ``points``, if already built)."""
+def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=None,
+                   repeats: int = 4) -> float:
+    """Median distance (metres) from each of ``points`` (m, 3) to its nearest other point at
+    another position (over a seeded sample of ``sample`` points when there are more; ``tree``: a
+    `scipy.spatial.cKDTree` of ``points``, if already built). Repeated points (heads whose fields
+    overlap measure the same grid position twice) are skipped, up to ``repeats`` copies of a
+    point; a point with more copies does not count."""
     from scipy.spatial import cKDTree
 
     if len(points) < 2:
@@ -55,8 +63,11 @@ def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=
     q = points
     if len(points) > sample:
         q = points[np.random.default_rng(seed).choice(len(points), sample, replace=False)]
-    d, _ = (tree if tree is not None else cKDTree(points)).query(q, k=2)
-    return float(np.median(d[:, 1]))
+    k = int(min(repeats + 1, len(points)))
+    d, _ = (tree if tree is not None else cKDTree(points)).query(q, k=k)
+    d = np.where(d[:, 1:] > 0, d[:, 1:], np.inf).min(axis=1)
+    d = d[np.isfinite(d)]
+    return float(np.median(d)) if len(d) else 0.0
 
 
 def max_edge_length(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
@@ -467,7 +478,8 @@ def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.nd
 
 def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
                  margin: float = 0.5, min_edge: float = 2.0, reach: float = 1.0, min_rays: int = 1,
-                 tree=None, workers: int = 1, chunk: int = 200000) -> np.ndarray:
+                 tree=None, workers: int = 1, chunk: int = 200000,
+                 longest: np.ndarray | None = None) -> np.ndarray:
     """(k,) bool: faces that the sensor saw through (free-space evidence).
 
     Every point was measured along a ray from the point toward its camera (``view_dir``), and
@@ -501,13 +513,16 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
         Threads of the neighbour query (speed only).
     chunk : int
         Pairs of (triangle, point) tested at a time (memory only).
+    longest : (k,) float, optional
+        `max_edge_length` of ``faces``, if already computed (speed only).
     """
     from scipy.spatial import cKDTree
 
     out = np.zeros(len(faces), dtype=bool)
     if len(faces) == 0 or view_dir is None:
         return out
-    cand = np.flatnonzero(max_edge_length(points, faces) > min_edge * spacing)
+    longest = max_edge_length(points, faces) if longest is None else longest
+    cand = np.flatnonzero(longest > min_edge * spacing)
     if len(cand) == 0:
         return out
     v = points[faces[cand]]
@@ -543,6 +558,91 @@ def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, sp
         hits += np.bincount(t_[h], minlength=len(cand))
     out[cand[hits >= min_rays]] = True
     return out
+
+
+def view_consistency(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray) -> np.ndarray:
+    """(k,) how well each triangle faces the cameras that measured its vertices: the larger, over
+    the triangle's two orientations, of the smallest cosine between its unit normal and its
+    vertices' viewing directions.
+
+    A point is measured only where the surface faces its camera, so a triangle of real surface,
+    which approximates the surface at each of its vertices, faces every one of its vertices'
+    cameras, up to the turn of the surface across the triangle (the value is positive, or a little
+    below 0 where the triangle turns around a silhouette). A triangle joining a point seen from
+    the front to one seen from behind across a gap (thighs, armpit, a forearm beside the hip)
+    faces away from one of them whichever way it is turned: the value is well below 0.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+    view_dir : (n, 3) or (3,) float
+        Unit direction from each point toward its camera (one for all: every triangle faces it
+        one way or the other, the value is >= 0).
+    """
+    if len(faces) == 0:
+        return np.zeros(0)
+    p = points[faces]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    vd = np.asarray(view_dir, dtype=np.float64)
+    d = vd[faces] if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3, 3))
+    c = np.einsum("ikj,ij->ik", d, n)
+    return np.maximum(c.min(axis=1), -c.max(axis=1))
+
+
+def point_normals(points: np.ndarray, idx: np.ndarray, view_dir: np.ndarray, k: int = 12,
+                  tree=None) -> np.ndarray:
+    """(m, 3) unit normals of the surface at the points ``idx`` (m,), turned toward their cameras.
+
+    The normal is the direction of least spread of each point's ``k`` nearest points (including
+    itself), turned so that it faces the point's viewing direction (a point is measured only where
+    the surface faces its camera).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    idx : (m,) int
+    view_dir : (n, 3) or (3,) float
+        Unit directions toward the cameras.
+    k : int
+        Neighbours per point (at least 3).
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(idx) == 0:
+        return np.zeros((0, 3))
+    tree = cKDTree(points) if tree is None else tree
+    k = int(min(max(k, 3), len(points)))
+    _, nb = tree.query(points[idx], k=k)
+    q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))
+    n = vec[:, :, 0]
+    vd = np.asarray(view_dir, dtype=np.float64)
+    d = vd[idx] if vd.ndim == 2 else np.broadcast_to(vd, n.shape)
+    return n * np.where(np.einsum("ij,ij->i", n, d) < 0, -1.0, 1.0)[:, None]
+
+
+def over_concavity(points: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(k, 3) height (metres) of each triangle's centroid above the surface's tangent plane at
+    each of its vertices (``normals`` (k, 3, 3): the unit outward surface normal at each face's
+    vertices, e.g. `point_normals`).
+
+    A triangle of the surface lies in the tangent planes at its vertices, up to the surface's
+    curvature: behind them on a convex surface (a cover of a hole in convex surface, which the
+    paper keeps, lies inside the body), at most a fraction of an edge times the edge's turn in
+    front of them on a concave one. A triangle whose centroid stands in front of the tangent planes
+    at its vertices (at every one, or clearly on average) bridges a concavity: a cover over a hole
+    in concave surface (under the chin, the armpit, between the thighs), or surface spanning a gap
+    between two parts.
+    """
+    if len(faces) == 0:
+        return np.zeros((0, 3))
+    v = points[faces]
+    c = v.mean(axis=1)
+    return np.einsum("ikj,ikj->ik", normals, c[:, None, :] - v)
 
 
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
@@ -601,8 +701,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         Remove triangles made only of points in several sections (see `merge_sections`) and,
         with ``params.open_joint_ends``, leave open the ends where a child section continues
         (both keep the inside of the body out of the surface); also apply the fold rule
-        (``params.fold_cos``) and the free-space carving (``params.carve_margin``). False (the
-        simple baseline): the paper's surface.
+        (``params.fold_cos``), the view consistency (``params.facing_cos``), the concavity
+        covers (``params.concave_height``) and the free-space carving (``params.carve_margin``).
+        False (the simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
 
@@ -658,10 +759,29 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
         faces, sec = faces[keep], sec[keep]
+    longest = max_edge_length(points, faces) if drop_inner and view_dir is not None else None
+    if drop_inner and params.facing_cos > -1 and view_dir is not None:
+        keep = np.ones(len(faces), dtype=bool)
+        long_ = np.flatnonzero(longest > params.facing_min_edge * spacing)
+        keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
+        faces, sec, longest = faces[keep], sec[keep], longest[keep]
+    tree = None
+    if drop_inner and params.concave_height > 0 and view_dir is not None:
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(points)
+        long_ = np.flatnonzero(longest > params.concave_min_edge * spacing)
+        ids, inv = np.unique(faces[long_].ravel(), return_inverse=True)
+        nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)
+        keep = np.ones(len(faces), dtype=bool)
+        lift = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3))
+        keep[long_] = ((lift.min(axis=1) <= params.concave_height * spacing)
+                       & (lift.mean(axis=1) <= params.concave_mean_height * spacing))
+        faces, sec, longest = faces[keep], sec[keep], longest[keep]
     if drop_inner and params.carve_margin > 0 and view_dir is not None:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
                              params.carve_min_edge, params.carve_reach, params.carve_min_rays,
-                             workers=params.workers)
+                             tree=tree, workers=params.workers, longest=longest)
         faces, sec = faces[keep], sec[keep]
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped

@@ -256,8 +256,8 @@ def _reconstruct_and_score(s, truth, fit, method, over=None):
 KNOWN: dict = {}
 
 #: Postures whose bridging (oracle posture) is above the issue's 0.5 %, with their ceiling: a 22 cm2
-#: cover of the armpit the sensor never saw, its centroid 5.1 mm out (measured 0.66 %).
-BRIDGING_ABOVE = {"woman_standing": 0.008}
+#: cover of the armpit the sensor never saw, its centroid 5.1 mm out (measured 0.60 %).
+BRIDGING_ABOVE = {"woman_standing": 0.007}
 
 
 #: Postures below the issue's 95 % "truth among labels", with their floor: none (the lowest,
@@ -287,11 +287,11 @@ def test_shipped_posture_against_ground_truth(name, scored):
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_shipped_postures_on_average(scored):
     """Means over every shipped posture (measured: truth among labels 0.971, 1/m-scored 0.958,
-    bridging 0.27 %)."""
+    bridging 0.18 %)."""
     rows = [_score(n, scored)["proposed"] for n in _shipped()]
     assert np.mean([r["accuracy"]["section_accuracy_any"] for r in rows]) >= 0.965
     assert np.mean([r["accuracy"]["section_accuracy"] for r in rows]) >= 0.95
-    assert np.mean([r["bridging"] for r in rows]) < 0.0035
+    assert np.mean([r["bridging"] for r in rows]) < 0.0025
 
 
 # -- the shipped postures, the whole pipeline as users run it (posture estimated) ----------------
@@ -319,19 +319,27 @@ def estimated():
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_estimated_posture_on_the_library(estimated):
     """Regression level of the whole pipeline on every shipped posture (measured at this commit:
-    truth among labels mean 0.955, 1/m-scored mean 0.942, min 0.919; bridging mean 0.48 %)."""
+    truth among labels mean 0.955, 1/m-scored mean 0.942, min 0.919; bridging mean 0.26 %)."""
     prop = [r["proposed"] for r in estimated.values()]
     assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.95
     assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.91
-    assert np.mean([r["bridging"] for r in prop]) < 0.007
+    assert np.mean([r["bridging"] for r in prop]) < 0.0035
     for name, r in estimated.items():   # the paper's claim, posture by posture
         assert r["proposed"]["spurious"] < r["simple"]["spurious"], name
 
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
+def test_estimated_posture_bridging_meets_the_issue_target(estimated):
+    """Issue 5: bridging (surface in the air) below 0.5 % of the area on every shipped posture,
+    posture estimated (measured: 0.09 to 0.46 %, woman_standing the highest)."""
+    for name, r in estimated.items():
+        assert r["proposed"]["bridging"] < 0.005, name
+
+
+@pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 @pytest.mark.xfail(strict=True, reason="issue 5's targets with the estimated posture are not reached: "
-                                       "truth among labels >= 95 % on 13/21 postures (min 0.929), "
-                                       "bridging < 0.5 % on 11/21 (max 1.00 %)")
+                                       "truth among labels >= 95 % on 18/21 postures (min 0.936), "
+                                       "(bridging < 0.5 % is met on 21/21)")
 def test_estimated_posture_meets_the_issue_targets(estimated):
     for name, r in estimated.items():
         assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name

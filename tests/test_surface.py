@@ -266,3 +266,96 @@ def test_carving_keeps_a_convex_capsule_whole():
     on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.1, carve_min_edge=0.0), vd)[0]
     off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(carve_margin=0.0), vd)[0]
     assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
+
+
+def test_view_consistency_flags_triangles_facing_away_from_a_camera():
+    """Front camera -y, rear camera +y. A triangle of the front surface faces its cameras (+1); an
+    edge-on triangle at a silhouette, vertices seen from both sides, is on the limit (0); a triangle
+    from two front points of one thigh to a rear point of the other, tilted 45 degrees, faces away
+    from one camera whichever way it is turned (-0.71); one camera for all: never below 0."""
+    P = np.array([[0.00, -0.05, 0.00], [0.02, -0.05, 0.00], [0.00, -0.05, 0.02],    # front sheet
+                  [0.05, -0.01, 0.00], [0.05, 0.01, 0.00], [0.05, 0.00, 0.02],      # silhouette
+                  [0.00, 0.00, 0.00], [0.00, 0.00, 0.03], [0.03, 0.03, 0.01]])       # across a gap
+    vd = np.array([[0, -1, 0]] * 3 + [[0, -1, 0], [0, 1, 0], [0, -1, 0]] + [[0, -1, 0]] * 2 + [[0, 1, 0]],
+                  dtype=float)
+    faces = np.array([[0, 1, 2], [3, 4, 5], [6, 7, 8]])
+    c = S.view_consistency(P, faces, vd)
+    assert np.allclose(c, [1.0, 0.0, -np.sqrt(0.5)])
+    assert np.allclose(S.view_consistency(P, faces[::-1, ::-1], vd), c[::-1])   # orientation-free
+    assert (S.view_consistency(P, faces, np.array([0.0, -1.0, 0.0])) >= 0).all()
+
+
+def test_view_consistency_keeps_a_convex_capsule_seen_front_and_rear_whole():
+    """Every point of a convex capsule seen by the front or the rear camera, whichever faces it:
+    the triangles around its silhouettes turn with the surface and are kept, nothing is removed."""
+    P = capsule_points()
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": shape}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:, SECTIONS.index("thigh_l")] = True
+    vd = np.column_stack([np.zeros(len(P)), np.where(P[:, 1] >= 0, 1.0, -1.0), np.zeros(len(P))])
+    base = dict(carve_margin=0.0, workers=1)
+    on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(facing_min_edge=0.0, **base), vd)[0]
+    off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(facing_cos=-1.0, **base), vd)[0]
+    assert len(on) > 1000 and S.face_keys(on).tolist() == S.face_keys(off).tolist()
+
+
+def _groove(sign, t=0.6, step=0.01):
+    """Grid points on z = sign * t * |x| (sign +1: a V-groove, concave seen from +z; -1: a ridge),
+    seen from +z, and a triangle from the two sides' points at x = -5 and +5 cm."""
+    g = np.stack(np.meshgrid(np.arange(-0.1, 0.1001, step), np.arange(-0.1, 0.1001, step)), -1).reshape(-1, 2)
+    P = np.column_stack([g, sign * t * np.abs(g[:, 0])])
+    at = lambda x, y: int(np.argmin(np.linalg.norm(g - [x, y], axis=1)))
+    return P, np.array([[at(-0.05, -0.02), at(0.05, 0.0), at(-0.05, 0.02)]])
+
+
+def test_point_normals_face_the_camera():
+    P, _ = _groove(1)
+    idx = np.flatnonzero((np.abs(P[:, 0] - 0.05) < 1e-9) & (np.abs(P[:, 1]) < 0.05))
+    n = S.point_normals(P, idx, np.array([0.0, 0.0, 1.0]), k=8)
+    expect = np.array([-0.6, 0.0, 1.0]) / np.hypot(0.6, 1.0)       # right side of the groove
+    assert np.allclose(n, expect, atol=1e-6)
+
+
+def test_over_concavity_sign():
+    """A triangle across a V-groove (a cover over a concave hole) stands in front of the tangent
+    planes at all its vertices (here by 1.7 cm); across a ridge (a convex hole's cover, inside the
+    body) behind them; on a plane it lies in them."""
+    up = np.array([0.0, 0.0, 1.0])
+    heights = []
+    for sign in (1, -1, 0):
+        P, f = _groove(sign)
+        nrm = S.point_normals(P, f.ravel(), up, k=8).reshape(-1, 3, 3)
+        heights.append(S.over_concavity(P, f, nrm)[0])
+    lift = (0.1 / 3) * 0.6 / np.hypot(0.6, 1.0)                   # centroid 3.3 cm in from a side
+    assert np.allclose(heights[0], [lift, 2 * lift, lift], atol=1e-6)
+    assert np.allclose(heights[1], [-lift, -2 * lift, -lift], atol=1e-6)
+    assert np.allclose(heights[2], 0.0, atol=1e-6)
+
+
+def test_concave_rule_keeps_the_cover_of_a_hole_in_convex_surface():
+    """A capsule seen from outside with a 6 cm hole in the data: the paper covers it; the cover
+    lies inside the body, behind the tangent planes, and the concavity rule keeps it."""
+    P = capsule_points()
+    P = P[np.linalg.norm(P - [0.06, 0.0, 0.0], axis=1) > 0.03]
+    shape = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": shape}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    member[:, SECTIONS.index("thigh_l")] = True
+    axis = np.column_stack([np.zeros((len(P), 2)), np.clip(P[:, 2], -0.2, 0.2)])
+    vd = (P - axis) / np.linalg.norm(P - axis, axis=1, keepdims=True)
+    base = dict(carve_margin=0.0, facing_cos=-1.0, workers=1)
+    on = S.reconstruct_surfaces(P, member, fit, SurfaceParams(concave_min_edge=0.0, **base), vd)[0]
+    off = S.reconstruct_surfaces(P, member, fit, SurfaceParams(concave_height=0.0, **base), vd)[0]
+    longest = S.max_edge_length(P, off)
+    assert longest.max() > 4 * S.median_spacing(P)                 # the hole is covered ...
+    assert S.face_keys(on).tolist() == S.face_keys(off).tolist()   # ... and stays covered
+
+
+def test_median_spacing_skips_repeated_points():
+    """Heads whose fields overlap can measure the same position twice: the spacing is that of the
+    distinct positions (a 1 cm grid), not 0, which would make every triangle "long"."""
+    g = np.stack(np.meshgrid(np.arange(0, 0.3, 0.01), np.arange(0, 0.3, 0.01)), -1).reshape(-1, 2)
+    P = np.column_stack([g, np.zeros(len(g))])
+    assert np.isclose(S.median_spacing(P), 0.01)
+    assert np.isclose(S.median_spacing(np.vstack([P, P, P])), 0.01)
