@@ -49,6 +49,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    out at the shoulder, a half-seen side): when the crown, found on the head's axis, lies more
    than `match_min_anchor_shift` from the model's, the torso slides (at most
    `match_max_anchor_shift`) so that the head hangs from it, and the sections are placed again.
+   A head that finds no crown on its own axis leans into the air above a torso matched too high
+   (a seated body's upright torso 19 cm high, a child's with raised arms 10 cm: the head leaned 50
+   degrees onto nothing or onto an arm): the crown is then sought on the trunk's axis
+   (`match_crown_on_trunk`), the torso may only slide down to it, and the slid placement is kept
+   when its model explains more points than the one where it was (the trunk's axis misses a head
+   held off it, a body leaning sideways, and finds the shoulders).
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
    along the torso axis (at least `match_min_first_stature`; every torso candidate is matched
    again, locally, at that size); then each leg chain's length (hip to
