@@ -366,15 +366,18 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
     dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70,
                           max_side=params.match_head_max_side)
     secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
-    if anchor and body.stature >= params.fit_anchor_min_stature:
+    if anchor:
         # the volume pins the torso poorly along its axis: the crown does (adult head length)
         shift = _crown_shift(points, secs["head"])
         on_trunk = False
         if shift is None and params.match_crown_on_trunk:
             # no crown on the head's axis: the head leans into the air above a torso matched too
-            # high; the crown on the trunk's axis may only bring it down
+            # high; the crown on the trunk's axis may only bring it down (at any size: a child's
+            # larger head only leaves the torso a little high)
             shift = _crown_on_trunk(points, chest, Lh, float(body.radii("head").min()))
             shift, on_trunk = (shift, True) if shift is not None and shift < 0 else (None, False)
+        elif body.stature < params.fit_anchor_min_stature:
+            shift = None   # a child's head is relatively larger: the adult head length does not hold
         if shift is not None and abs(shift) > (params.match_min_anchor_shift if min_shift is None else min_shift):
             move = float(np.clip(shift, -params.match_max_anchor_shift, params.match_max_anchor_shift))
             moved = _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),

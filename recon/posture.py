@@ -54,7 +54,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    degrees onto nothing or onto an arm): the crown is then sought on the trunk's axis
    (`match_crown_on_trunk`), the torso may only slide down to it, and the slid placement is kept
    when its model explains more points than the one where it was (the trunk's axis misses a head
-   held off it, a body leaning sideways, and finds the shoulders).
+   held off it, a body leaning sideways, and finds the shoulders). This holds at any size, also
+   below `fit_anchor_min_stature` where the crown on the head's axis is not used (a child's larger
+   head only leaves the slid torso a little high; a child with raised arms at 20 mm, matched again
+   at 1.40 m with its torso 17 cm high and its head in the air, was a silent nonsense fit).
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
    along the torso axis (at least `match_min_first_stature`; every torso candidate is matched
    again, locally, at that size); then each leg chain's length (hip to
