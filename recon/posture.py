@@ -116,7 +116,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
    points from its elbow (`recon.adjust.research_forearms`: a forearm against the body merges with
    the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
-   when the check no longer doubts it. A section in empty voxels whose seen surface fits it (shell
+   when the check no longer doubts it and its axis does not run inside another section
+   (`recon.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
+   points). A section in empty voxels whose seen surface fits it (shell
    score at least `match_min_shell_score`) is kept, and so is a leg section whose fitted surface the
    points cover (`fit_leg_seen_cover`, `fit_leg_seen_rms`: a thigh raised level, seen from the
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the

@@ -722,3 +722,18 @@ def test_split_hips_lowers_thighs_to_the_crotch():
     flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
                          for s, c in (("l", 0.1), ("r", -0.1))}}
     assert all(np.allclose(split_hips(points, flexed)[k].start, flexed[k].start) for k in ("thigh_l", "thigh_r"))
+
+
+def test_a_forearm_through_the_head_is_inside_another_section():
+    """`_inside_others`: a forearm whose axis runs into the head counts as inside another section
+    (the re-search drops it); the same forearm held a forearm radius beside the head, or any
+    section tested against itself only, does not."""
+    from recon.adjust import _inside_others
+
+    x = np.array([1.0, 0, 0])
+    head = SectionShape("head", [0, 0, 1.5], [0, 0, 1.75], [0.08, 0.08], x)
+    through = SectionShape("forearm_l", [0.25, 0, 1.55], [0.0, 0, 1.66], [0.035, 0.035], x)
+    beside = SectionShape("forearm_l", [0.35, 0, 1.55], [0.115, 0, 1.66], [0.035, 0.035], x)
+    assert _inside_others(through, {"head": head, "forearm_l": through}, "forearm_l")
+    assert not _inside_others(beside, {"head": head, "forearm_l": beside}, "forearm_l")
+    assert not _inside_others(through, {"forearm_l": through}, "forearm_l")
