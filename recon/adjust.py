@@ -397,8 +397,9 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
     not hold (the hips, the belly): its fit then covers its surface poorly and leaves its own
     points. The points tell the limb apart (`_search_forearm`), from two elbows: where the fine
     adjustment left it, and the model's upper-arm length along the fitted upper arm (the doubted
-    forearm may have dragged the elbow along). The result the arm check no longer doubts, and
-    that covers more of its surface, replaces the doubted forearm.
+    forearm may have dragged the elbow along). The result the arm check no longer doubts, whose
+    axis does not run inside another section (`_inside_others`), and that covers more of its
+    surface, replaces the doubted forearm.
 
     Parameters
     ----------
@@ -428,6 +429,8 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
             if found is None:
                 continue
             shp, rms, n = found
+            if _inside_others(shp, trial, dist):
+                continue   # a forearm does not run inside another part of the body
             cov = section_cover(points, {**trial, dist: shp}, params.fit_coverage_distance).get(dist, 0.0)
             if not arm_doubtful(cov, rms, params) and (best is None or cov > best[0]):
                 best = (cov, {**trial, dist: shp}, rms, n)
@@ -435,6 +438,21 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
             secs, resid, counts = best[1], {**resid, dist: best[2]}, {**counts, dist: best[3]}
             replaced.add(dist)
     return secs, resid, counts, replaced
+
+
+def _inside_others(shape: SectionShape, secs: dict, name: str) -> bool:
+    """Whether more than one of four samples on ``shape``'s axis (at 0.25, 0.5, 0.75 and 1 of its
+    length) lies inside another section of ``secs`` than ``name``. A forearm fitted on the points
+    after the re-search lies beside the trunk or the head, never in it (a hand held against the
+    body or on the head keeps its axis a forearm radius outside): one fitted through the head was a
+    forearm pointed at the cameras, unseen, that took the neck's points (arms_forward at k = 1
+    turned 60 degrees: wrist 50 cm off, a silent nonsense fit)."""
+    samples = shape.start + np.linspace(0.25, 1.0, 4)[:, None] * (shape.end - shape.start)
+    inside = np.zeros(len(samples), bool)
+    for k, v in secs.items():
+        if k != name:
+            inside |= v.coords(samples)[0] < 0
+    return int(inside.sum()) > 1
 
 
 def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams):

@@ -366,13 +366,29 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
     dh, sh = _search_cone(scorer, chest.end, chest.axis, Lh, body.radii("head"), ex, 70,
                           max_side=params.match_head_max_side)
     secs["head"] = _column("head", chest.end, dh, Lh, body.radii("head"), ex)
-    if anchor and body.stature >= params.fit_anchor_min_stature:
+    if anchor:
         # the volume pins the torso poorly along its axis: the crown does (adult head length)
         shift = _crown_shift(points, secs["head"])
+        on_trunk = False
+        if shift is None and params.match_crown_on_trunk:
+            # no crown on the head's axis: the head leans into the air above a torso matched too
+            # high; the crown on the trunk's axis may only bring it down (at any size: a child's
+            # larger head only leaves the torso a little high)
+            shift = _crown_on_trunk(points, chest, Lh, float(body.radii("head").min()))
+            shift, on_trunk = (shift, True) if shift is not None and shift < 0 else (None, False)
+        elif body.stature < params.fit_anchor_min_stature:
+            shift = None   # a child's head is relatively larger: the adult head length does not hold
         if shift is not None and abs(shift) > (params.match_min_anchor_shift if min_shift is None else min_shift):
             move = float(np.clip(shift, -params.match_max_anchor_shift, params.match_max_anchor_shift))
-            return _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),
-                               R, body, params, dirs, anchor=False)
+            moved = _place_body(points, scorer_base, centre + move * (chest.end - pelvis) / np.linalg.norm(chest.end - pelvis),
+                                R, body, params, dirs, anchor=False)
+            if not on_trunk:
+                return moved
+            # the trunk's axis may miss a head held off it (a body leaning sideways) and find the
+            # shoulders: the points decide between the torso slid down and where it was
+            stay = _place_body(points, scorer_base, centre, R, body, params, dirs, anchor=False)
+            sample = points[::max(1, len(points) // params.match_explain_points)]
+            return max((stay, moved), key=lambda p: explained_fraction(sample, p.sections, params.match_explain_distance))
     total += sh * Lh
     scorer.claim(secs["head"])
     # limb roots in the chest (arms) and waist (legs) frames; legs first: hanging hands reach
@@ -445,6 +461,29 @@ def _crown_shift(points, head: SectionShape) -> float | None:
     if near.sum() < 10:
         return None
     return float(np.quantile(h[near], 0.995) - head.length)
+
+
+def _crown_on_trunk(points, chest: SectionShape, head_len: float, head_radius: float) -> float | None:
+    """How far the crown, sought on the trunk's axis (the chest's, continued above the neck), lies
+    beyond a head length above the neck, metres (None: fewer than 10 points there).
+
+    The head sits on the trunk: when the head's column, searched from a neck placed too high, finds
+    no points on its own axis (it leans into the air or onto a raised arm), the top of the points
+    within one head radius of the trunk's axis, from half a head length below the neck to 1.8
+    above, is the crown (a seated body's upright torso matched 19 cm high, a child's with raised
+    arms 10 cm high: their heads leaned 50 degrees onto nothing). One head radius, not the 0.6 of
+    `_crown_shift`: a head is carried a little forward of the trunk's axis (the seated body's
+    nearest points lay 4.3 cm off it). `_place_body` slides the torso only down to it (a torso matched too low keeps
+    its head in the head's points, whose axis finds the crown) and keeps the slid placement only
+    when it explains more points: beside a head held off the trunk's axis (a body leaning
+    sideways, 20 mm scan) the axis finds the shoulders."""
+    rel = points - chest.end
+    h = rel @ chest.axis
+    rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
+    near = (rho2 < head_radius ** 2) & (h > -0.5 * head_len) & (h < 1.8 * head_len)
+    if near.sum() < 10:
+        return None
+    return float(np.quantile(h[near], 0.995) - head_len)
 
 
 def _chain_extent(points, pose: Pose, dist: str) -> float | None:

@@ -475,6 +475,14 @@ class FitParams:
     match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
     match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
     match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
+    match_crown_on_trunk: int = 1          # 2.3(1): 1 = when the head finds no crown on its own axis, the crown is sought
+                                           # on the trunk's axis (`recon.match._crown_on_trunk`: the head sits on the
+                                           # trunk; a torso matched too high leaves its head leaning onto nothing) and
+                                           # the torso slid down to it when that explains more points. Measured at
+                                           # 10 mm: seated k1_rot137 5.0 / 13.1 -> 2.5 / 6.5 cm, child_arms_raised
+                                           # k1_rot137 6.4 / 11.1 -> 2.0 / 3.7 cm; nothing else changed. At any
+                                           # stature (not only from `fit_anchor_min_stature`): 20 mm child_arms_raised
+                                           # k1_rot137 WRONG 15.7 / 19.8 -> pass 3.3 / 5.4 cm (chosen)
     match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
     match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
     match_size_disagree: float = 0.1       # 2.1: the legs' length (from the matched hips) and crown to sole (which does

@@ -49,6 +49,15 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    out at the shoulder, a half-seen side): when the crown, found on the head's axis, lies more
    than `match_min_anchor_shift` from the model's, the torso slides (at most
    `match_max_anchor_shift`) so that the head hangs from it, and the sections are placed again.
+   A head that finds no crown on its own axis leans into the air above a torso matched too high
+   (a seated body's upright torso 19 cm high, a child's with raised arms 10 cm: the head leaned 50
+   degrees onto nothing or onto an arm): the crown is then sought on the trunk's axis
+   (`match_crown_on_trunk`), the torso may only slide down to it, and the slid placement is kept
+   when its model explains more points than the one where it was (the trunk's axis misses a head
+   held off it, a body leaning sideways, and finds the shoulders). This holds at any size, also
+   below `fit_anchor_min_stature` where the crown on the head's axis is not used (a child's larger
+   head only leaves the slid torso a little high; a child with raised arms at 20 mm, matched again
+   at 1.40 m with its torso 17 cm high and its head in the air, was a silent nonsense fit).
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
    along the torso axis (at least `match_min_first_stature`; every torso candidate is matched
    again, locally, at that size); then each leg chain's length (hip to
@@ -107,7 +116,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
    points from its elbow (`recon.adjust.research_forearms`: a forearm against the body merges with
    the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
-   when the check no longer doubts it. A section in empty voxels whose seen surface fits it (shell
+   when the check no longer doubts it and its axis does not run inside another section
+   (`recon.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
+   points). A section in empty voxels whose seen surface fits it (shell
    score at least `match_min_shell_score`) is kept, and so is a leg section whose fitted surface the
    points cover (`fit_leg_seen_cover`, `fit_leg_seen_rms`: a thigh raised level, seen from the
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
