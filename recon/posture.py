@@ -134,8 +134,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    silently as a fit.
 8. The joints are the rig's (the body file format's); the sections reported in the `BodyFit` meet
    where the body file's section labels change, which is not always at a joint: the torso splits
-   into waist and chest at `recon.bodymodel.TORSO_SPLIT` of the way from the pelvis to the chest
-   joint, the thighs start no higher than `CROTCH_SPLIT` thigh lengths above the crotch seen in
+   into waist and chest at `recon.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
+   the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
+   column; `recon.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths above the crotch seen in
    the points (`recon.joints.split_hips`), the lower legs start `KNEE_SPLIT` statures below the
    knees, and sections meeting at a joint have flat caps (`JOINT_CAP`). The clustering separates the sections there.
 
