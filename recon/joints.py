@@ -11,8 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SPINE_BACK, TORSO_SPLIT,
-                        TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, StandardBody, kind_of)
+from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SHOULDER_CAP, SPINE_BACK,
+                        TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE, StandardBody, kind_of)
 from .geometry import cross, unit
 from .model import SectionShape
 
@@ -428,18 +428,75 @@ def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE
 _FREE_ENDS = {("waist", 0), ("head", 1)} | {(dist, 1) for _, dist, *_ in LIMBS}
 
 
-def joint_caps(secs: dict, height: float = JOINT_CAP) -> dict:
+def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER_CAP,
+               arm_shape: tuple = UPPER_ARM_SHAPE) -> dict:
     """The reported sections with flat caps where they meet at a joint (``height`` minor radii,
     `recon.bodymodel.JOINT_CAP`), as the ground truth's sections have: the fit's hemispheres there
     reach into the neighbour (a thigh's, 9 cm into the waist, took its points). Free ends keep
-    their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890."""
+    their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890.
+
+    The upper arms first get their cross-section (`shape_upper_arms`, ``arm_shape``), and their
+    start cap at the shoulder is ``shoulder[0] + shoulder[1] * cos`` minor radii high, ``cos`` the
+    cosine between the arm's axis and the chest's downward axis (`recon.bodymodel.SHOULDER_CAP`):
+    the body file labels the deltoid, which covers the shoulder joint from above, upper arm, so
+    the labels reach past the joint along a hanging arm's axis (0.04 statures on the oracle's
+    sections, which span their labels) more than along a raised one's (0.016-0.026).
+    """
+    secs = shape_upper_arms(secs, arm_shape)
+    down = -secs["chest"].axis if "chest" in secs else None
     out = {}
     for name, s in secs.items():
         caps = s.caps.copy()
         for end in (0, 1):
             if (name, end) not in _FREE_ENDS:
                 caps[end] = min(caps[end], height * float(s.radii.min()))
+        if kind_of(name) == "upper_arm" and down is not None:
+            caps[0] = max(shoulder[0] + shoulder[1] * float(s.axis @ down), 0.0) * float(s.radii.min())
         out[name] = s.replace(caps=caps)
+    return out
+
+
+def shape_upper_arms(secs: dict, shape: tuple = UPPER_ARM_SHAPE, min_sin: float = 0.5) -> dict:
+    """The reported upper arms with an elliptic cross-section: front to back ``shape[0]``, across
+    ``shape[1]`` times the fitted (circular) radius (`recon.bodymodel.UPPER_ARM_SHAPE`).
+
+    The upper arm is deeper front to back (biceps in front, triceps behind, the deltoid over the
+    joint) than across: the oracle's sections (the principal radii of the labels' cross-sections)
+    measure 1.16-1.25 times deeper than wide on all 21 shipped bodies, the larger radius front to
+    back for arms hanging, raised sideways and raised overhead. The fit's limb columns are round;
+    the shoulder's points in front of a round arm lay beyond its reach and went to the chest alone.
+    Front to back is the body's: across the chest's axis and its larger radius (the chest is wider
+    than deep), taken across the arm's axis. An arm within ``asin(min_sin)`` of pointing front or
+    back (arms held forward) keeps its round section (front to back is then along it), and so
+    does a section already elliptic (applied once).
+
+    Parameters
+    ----------
+    secs : dict of SectionShape
+    shape : (2,) float
+        Front-back and across radii over the fitted radius (product 1: the same area).
+    min_sin : float
+
+    Returns
+    -------
+    dict of SectionShape
+        ``secs`` with the upper arms replaced.
+    """
+    if "chest" not in secs:
+        return secs
+    c = secs["chest"]
+    fx, fy, _ = c.frame
+    back = fy if c.radii[0] >= c.radii[1] else fx
+    out = dict(secs)
+    for side in ("l", "r"):
+        s = secs.get(f"upper_arm_{side}")
+        if s is None or not s.is_cylinder:
+            continue
+        fb = back - s.axis * float(back @ s.axis)
+        if np.linalg.norm(fb) < min_sin:
+            continue
+        r = float(s.radii.mean())
+        out[s.name] = s.replace(radii=np.array([shape[0] * r, shape[1] * r]), frame_x=unit(fb))
     return out
 
 
