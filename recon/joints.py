@@ -13,9 +13,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, SHOULDER_CAP, SPINE_BACK,
-                        LOWER_LEG_SHAPE, TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE,
-                        StandardBody, kind_of)
+from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, LOWER_LEG_SHAPE,
+                        SHOULDER_CAP, SPINE_BACK, TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE,
+                        UPPER_ARM_SHAPE, StandardBody, kind_of)
 from .geometry import cross, unit
 from .model import SectionShape
 
@@ -439,11 +439,12 @@ def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER
     their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890.
 
     The upper arms and lower legs first get their cross-sections (`shape_limbs`, ``limb_shapes``);
-    the upper arms' start cap at the shoulder is ``shoulder[0] + shoulder[1] * cos`` minor radii high, ``cos`` the
-    cosine between the arm's axis and the chest's downward axis (`recon.bodymodel.SHOULDER_CAP`):
-    the body file labels the deltoid, which covers the shoulder joint from above, upper arm, so
-    the labels reach past the joint along a hanging arm's axis (0.04 statures on the oracle's
-    sections, which span their labels) more than along a raised one's (0.016-0.026).
+    the upper arms' start cap at the shoulder is ``shoulder[0] + shoulder[1] * cos`` minor radii
+    high (flatter than ``height`` on an arm raised overhead), ``cos`` the cosine between the arm's
+    axis and the chest's downward axis (`recon.bodymodel.SHOULDER_CAP`): the body file labels the
+    deltoid, which covers the shoulder joint from above, upper arm, so the labels reach past the
+    joint along a hanging arm's axis (0.04 statures on the oracle's sections, which span their
+    labels) more than along a raised one's (0.016-0.026).
     """
     secs = shape_limbs(secs, limb_shapes)
     down = -secs["chest"].axis if "chest" in secs else None
@@ -454,7 +455,8 @@ def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER
             if (name, end) not in _FREE_ENDS:
                 caps[end] = min(caps[end], height * float(s.radii.min()))
         if kind_of(name) == "upper_arm" and down is not None:
-            caps[0] = max(shoulder[0] + shoulder[1] * float(s.axis @ down), 0.0) * float(s.radii.min())
+            deltoid = max(shoulder[0] + shoulder[1] * float(s.axis @ down), 0.0)
+            caps[0] = deltoid * float(s.radii.min())
         out[name] = s.replace(caps=caps)
     return out
 
