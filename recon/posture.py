@@ -136,9 +136,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    where the body file's section labels change, which is not always at a joint: the torso splits
    into waist and chest at `recon.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
-   column; `recon.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths above the crotch seen in
-   the points (`recon.joints.split_hips`), the lower legs start `KNEE_SPLIT` statures below the
-   knees, and sections meeting at a joint have flat caps (`JOINT_CAP`). The clustering separates the sections there.
+   column; `recon.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths
+   above the crotch seen in the points (`recon.joints.split_hips`), the lower legs start
+   `KNEE_SPLIT` statures below the knees, sections meeting at a joint have flat caps (`JOINT_CAP`),
+   and the reported upper arms and lower legs are deeper front to back than across, the upper arm
+   with a cap over the shoulder (`recon.joints.shape_limbs`: the deltoid is upper arm, the calf lies
+   behind the shin). The clustering separates the sections there.
 
 The code: `recon.match` (steps 2-4), `recon.adjust` (step 5), `recon.joints` (joints, front and
 back, reported sections: steps 5, 6, 8); the entry point and the checks (step 7) are here; the
