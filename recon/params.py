@@ -524,6 +524,12 @@ class FitParams:
                                            #   with points; with 3 fifths an arm was laid along the upper back (the chest
                                            #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
                                            #   the true direction (chosen)
+    reach_max_halo_fraction: float = 0.25  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
+                                           #   its axis) allowed per point on its surface: a limb stands apart, a patch
+                                           #   of trunk the fitted torso misses spreads around a column laid on it.
+                                           #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
+                                           #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
+                                           #   (chosen)
     fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
     fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
                                            #   cells hold points at least this much and it fits them within this rms

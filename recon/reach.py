@@ -50,7 +50,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
 
     The chain with most fifths of its two sections holding points (then most points) is refined,
     each section on the points it is nearest to (`recon.adjust.fit_section`, model radii and
-    lengths, the forearm from the refined elbow; a turn beyond `fit_max_turn` is not taken), and
+    lengths, the forearm from the refined elbow; kept when it fits those points better), and
     replaces the arm. A scan without the arm (cut off, hidden) has no hand end on free points
     within reach, and the arm stays listed.
 
@@ -122,17 +122,16 @@ def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, pa
     up = secs[prox].replace(start=s, end=e, radii=body.radii("upper_arm"), frame_x=perp(d1))
     fore = secs[dist].replace(start=e, end=e + Lf * d2, radii=body.radii("forearm"), frame_x=perp(d2))
     # refined on the points each section is nearest to (least squares, model radii and lengths), the
-    # forearm from the refined elbow; a refinement turning a section further than `fit_max_turn`
-    # from the found direction is not taken
+    # forearm from the refined elbow; a refinement that fits those points worse is not taken
     chain = {**secs, prox: up, dist: fore}
     for n in (prox, dist):
         names, k = _assign(points, chain, params.fit_near_distance)
         own = points[k == names.index(n)]
         if len(own) < params.reach_min_hand_points:
             continue
-        shp, _ = fit_section(own, chain[n], loss=params.fit_loss, iterations=2, free_end=False, fit_radii=False,
+        shp, rms = fit_section(own, chain[n], loss=params.fit_loss, iterations=2, free_end=False, fit_radii=False,
                              max_shift=params.fit_max_shift, max_turn=np.radians(params.fit_max_turn))
-        if shp.axis @ chain[n].axis >= np.cos(np.radians(params.fit_max_turn)):
+        if rms <= np.sqrt(np.mean(chain[n].distance(own) ** 2)):
             chain[n] = shp
         if n == prox:
             f = chain[dist]
@@ -157,10 +156,12 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
     the upper arm, few in its core, not into another section), forearm directions ``d2_of(d1)`` (j, 3);
     ``dims`` (upper-arm length, forearm length, their radii), m. Returns (score, d1, d2) or None."""
     Lu, Lf, ru, rf = dims
-    surf_u, core_u, t_u, _ = _columns(X, s, d1s, Lu, ru)
+    surf_u, core_u, t_u, rho_u = _columns(X, s, d1s, Lu, ru)
     bins_u = _bins_seen(surf_u, t_u / Lu)
     n_u = surf_u.sum(1)
-    seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u)
+    halo = ((t_u > 0.15 * Lu) & (t_u < Lu) & (rho_u > 1.6 * ru) & (rho_u < 3 * ru)).sum(1)
+    seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u) \
+        & (halo <= params.reach_max_halo_fraction * n_u)
     seen[seen] = ~_inside(others, s, d1s[seen], Lu)
     order = np.argsort(-np.where(seen, n_u, -1), kind="stable")[:keep]
     order = order[seen[order]]
