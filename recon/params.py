@@ -524,6 +524,9 @@ class FitParams:
                                            #   with points; with 3 fifths an arm was laid along the upper back (the chest
                                            #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
                                            #   the true direction (chosen)
+    reach_back_clearance: float = 0.1      # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
+                                           #   taken (the back's own surface, 5-7 cm outside the fitted chest at the
+                                           #   shoulder blades, took a cut forearm's place on standing; chosen)
     reach_max_halo_fraction: float = 0.25  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
                                            #   its axis) allowed per point on its surface: a limb stands apart, a patch
                                            #   of trunk the fitted torso misses spreads around a column laid on it.

@@ -249,7 +249,7 @@ def _finish(work, pose: Pose, params: FitParams):
                      or (kind_of(n) in ("upper_arm", "forearm")
                          and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params)))
     # an arm seen only sparsely (held towards a camera), searched as a chain from its shoulder
-    secs, resid, counts, reached = reach_arms(work, secs, resid, counts, unfitted, pose.body, params)
+    secs, resid, counts, reached = reach_arms(work, secs, resid, counts, unfitted, pose.body, params, back)
     unfitted = tuple(n for n in unfitted if n not in reached)
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(

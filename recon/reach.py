@@ -25,7 +25,7 @@ __all__ = ["reach_arms"]
 
 
 def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: StandardBody,
-               params: FitParams) -> tuple[dict, dict, dict, set]:
+               params: FitParams, back=None) -> tuple[dict, dict, dict, set]:
     """Arms listed unfitted, searched again as a chain from the fitted shoulder.
 
     For an arm with a section in ``listed``, the free points (within an arm's reach of the shoulder,
@@ -67,6 +67,12 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     body : StandardBody
         The model at the fitted stature (lengths, radii).
     params : FitParams
+    back : (3,) float, optional
+        Unit vector towards the body's back (front and back from the data, `recon.joints.front_sign`):
+        a chain whose hand would lie behind the trunk, within `reach_back_clearance` of its
+        columns, is not taken (a hand resting on the back cannot be told from the back's own
+        surface, which the fitted torso's column leaves out by several cm at the shoulder blades:
+        the standing scan with its left forearm cut found a "hand" there).
 
     Returns
     -------
@@ -81,7 +87,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     for prox, dist, root, *_ in LIMBS:
         if not root.startswith("shoulder") or not ({prox, dist} & listed) or prox not in secs or dist not in secs:
             continue
-        found = _search_arm(points, secs, prox, dist, body, params)
+        found = _search_arm(points, secs, prox, dist, body, params, back)
         if found is None:
             continue
         up, fore = found
@@ -97,7 +103,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     return secs, resid, counts, reached
 
 
-def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams):
+def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams, back=None):
     """The best chain (upper arm, forearm) of `reach_arms` for one arm, or None."""
     s = secs[prox].start
     Lu, Lf = body.section_length(prox), body.section_length(dist)
@@ -113,8 +119,18 @@ def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, pa
 
     cos_bend = np.cos(np.radians(params.match_max_bend))
     # the upper arm's best directions over the sphere, each with the forearm's over a coarser sphere
-    best = _best_chain(X, s, _SEARCH_DIRS, lambda d1: _COARSE_DIRS[_COARSE_DIRS @ d1 >= cos_bend],
-                       (Lu, Lf, ru, rf), others, params, params.reach_candidates)
+    trunk = [secs[n] for n in ("chest", "waist") if n in secs]
+
+    def forearms(d1):
+        d2s = _COARSE_DIRS[_COARSE_DIRS @ d1 >= cos_bend]
+        if back is None or not trunk:
+            return d2s
+        hand = s + Lu * d1 + Lf * d2s
+        behind = (hand - trunk[0].start) @ np.asarray(back, dtype=float) > 0
+        near = np.min(np.stack([t.coords(hand)[0] for t in trunk], 1), 1) < params.reach_back_clearance
+        return d2s[~(behind & near)]
+
+    best = _best_chain(X, s, _SEARCH_DIRS, forearms, (Lu, Lf, ru, rf), others, params, params.reach_candidates)
     if best is None:
         return None
     _, d1, d2 = best
@@ -159,10 +175,11 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
     surf_u, core_u, t_u, rho_u = _columns(X, s, d1s, Lu, ru)
     bins_u = _bins_seen(surf_u, t_u / Lu)
     n_u = surf_u.sum(1)
+    own_u = (t_u > -ru) & (t_u < Lu + ru) & (rho_u < 1.6 * ru)
     halo = ((t_u > 0.15 * Lu) & (t_u < Lu) & (rho_u > 1.6 * ru) & (rho_u < 3 * ru)).sum(1)
     seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u) \
         & (halo <= params.reach_max_halo_fraction * n_u)
-    seen[seen] = ~_inside(others, s, d1s[seen], Lu)
+    seen[seen] = ~_inside(others, s, d1s[seen], Lu, ru)
     order = np.argsort(-np.where(seen, n_u, -1), kind="stable")[:keep]
     order = order[seen[order]]
     best = None
@@ -170,17 +187,23 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
         d1 = d1s[i]
         e = s + Lu * d1
         d2s = d2_of(d1)
+        if not len(d2s):
+            continue
         surf_f, core_f, t, rho = _columns(X, e, d2s, Lf, rf)
         hand = (t > (1 - params.reach_hand_fraction) * Lf) & (t < Lf + rf) & (rho < 1.6 * rf)
-        n_hand = hand.sum(1)
         beyond = ((t >= Lf + rf) & (t < Lf + 4 * rf) & (rho < 1.6 * rf)).sum(1)
+        # the forearm's own points: not on or in the upper arm's column (a forearm folded back onto it)
+        mine = ~own_u[i][None]
+        hand, surf_f, core_f = hand & mine, surf_f & mine, core_f & mine
+        n_hand = hand.sum(1)
         n_surf = (surf_f | surf_u[i][None] | hand).sum(1)
         n_core = (core_f | core_u[i][None]).sum(1)
-        ok = (n_hand >= params.reach_min_hand_points) & (beyond <= params.reach_max_core_fraction * n_hand) \
+        halo_f = ((t > 0.15 * Lf) & (t < Lf + rf) & (rho > 1.6 * rf) & (rho < 3 * rf) & mine).sum(1)
+        ok = (n_hand >= params.reach_min_hand_points) & (halo_f + halo[i] <= params.reach_max_halo_fraction * n_surf) & (beyond <= params.reach_max_core_fraction * n_hand) \
             & (n_surf >= params.fit_min_points) & (n_core <= params.reach_max_core_fraction * n_surf)
         if not ok.any():
             continue
-        ok[ok] = ~_inside(others, e, d2s[ok], Lf)
+        ok[ok] = ~_inside(others, e, d2s[ok], Lf, rf)
         # an arm's seen points run along its whole length: the most fifths holding points first
         score = np.where(ok, (bins_u[i] + _bins_seen(surf_f | hand, t / Lf)) * (len(X) + 1) + n_surf, -1)
         j = int(np.argmax(score))
@@ -196,11 +219,13 @@ def _bins_seen(on: np.ndarray, f: np.ndarray, n: int = 5) -> np.ndarray:
     return sum((on & (b == i)).any(1) for i in range(n))
 
 
-def _inside(others, e: np.ndarray, dirs: np.ndarray, L: float) -> np.ndarray:
-    """(k,) whether a section from ``e`` (3,) along each of ``dirs`` (k, 3), ``L`` long, runs into one of
-    ``others`` (SectionShape): any of 4 samples of its axis, at 0.25 to 1 of its length, inside one."""
-    samples = (e + (np.linspace(0.25, 1.0, 4) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
-    return sum((o.coords(samples)[0] < 0).reshape(len(dirs), 4).sum(1) for o in others) > 0
+def _inside(others, e: np.ndarray, dirs: np.ndarray, L: float, r: float) -> np.ndarray:
+    """(k,) whether a section from ``e`` (3,) along each of ``dirs`` (k, 3), ``L`` long, of radius ``r``,
+    runs into one of ``others`` (SectionShape): any of 7 samples of its axis, at 0.25 to 1 of its
+    length, nearer than half the radius to another section's surface or inside it (a limb's flesh does
+    not sink into the trunk; an axis grazing the trunk collects the trunk's own points)."""
+    samples = (e + (np.linspace(0.25, 1.0, 7) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
+    return sum((o.coords(samples)[0] < 0.5 * r).reshape(len(dirs), 7).sum(1) for o in others) > 0
 
 
 #: Forearm directions searched (about 10 degrees apart).
