@@ -38,15 +38,18 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
       its five fifths (an arm's seen surface runs along it, even sparsely: a direction grazing a
       patch of the trunk near the shoulder holds points only there), few in its core (at most
       `reach_max_core_fraction` of them nearer the axis than 0.4 radii: an arm does not cross seen
-      surface) and no axis sample inside another section; the `reach_candidates` with most surface
-      points go on;
+      surface), few around it (`reach_max_halo_fraction`, 1.6 to 3 radii out: a limb stands apart,
+      a patch of trunk surface spreads around a column laid on it) and its axis half a radius clear
+      of every other section; the `reach_candidates` with most surface points go on;
     - forearm: every direction of a 400-direction sphere within the elbow's bend
       (`match_max_bend`) whose hand end (the last `reach_hand_fraction` of the forearm and one
       radius beyond, within 1.6 radii of its axis) holds at least `reach_min_hand_points` free
       points, with the space beyond it (1 to 4 radii past the end) nearly empty (at most
       `reach_max_core_fraction` of the hand's count: a hand is a free end, the fist of an arm held
-      out is what the camera it points at sees first), few core points, no axis sample inside
-      another section, and at least `fit_min_points` points on the chain.
+      out is what the camera it points at sees first), counting only points off the upper arm's
+      column (a forearm folded back onto it), few core and halo points, its axis half a radius
+      clear of other sections, its hand not behind the trunk near it (``back``), and at least
+      `fit_min_points` points on the chain.
 
     The chain with most fifths of its two sections holding points (then most points) is refined,
     each section on the points it is nearest to (`recon.adjust.fit_section`, model radii and
