@@ -521,6 +521,26 @@ class FitParams:
                                            #   head anchor moved the arms off their points, 4 cm on most
                                            #   scans: arm covers on the library rose 0.69 -> 0.77 mean
                                            #   when they stayed, the doubt cover by the same ratio)
+    reach_candidates: int = 60             # 2.3(2): an arm listed unfitted is searched again as a chain from its
+    reach_min_hand_points: int = 10        #   shoulder on the points no other section explains (`recon.reach`):
+    reach_hand_fraction: float = 0.3       #   upper-arm directions kept for the forearm's search; points needed at
+    reach_max_core_fraction: float = 0.1   #   the hand end (the last this fraction of the forearm, a radius beyond);
+    reach_min_upper_bins: int = 4          #   points inside the columns (and past the hand) allowed per surface (hand)
+                                           #   point; fifths of the upper arm holding points. Measured on arms_forward
+                                           #   (arms held forward, seen end-on; 10 mm, k = 1, 2, 3): the true arms hold
+                                           #   18-37 points at the hand end, 0-5 in the core, their upper arms 4-5 fifths
+                                           #   with points; with 3 fifths an arm was laid along the upper back (the chest
+                                           #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
+                                           #   the true direction (chosen)
+    reach_back_clearance: float = 0.1      # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
+                                           #   taken (the back's own surface, 5-7 cm outside the fitted chest at the
+                                           #   shoulder blades, took a cut forearm's place on standing; chosen)
+    reach_max_halo_fraction: float = 0.25  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
+                                           #   its axis) allowed per point on its surface: a limb stands apart, a patch
+                                           #   of trunk the fitted torso misses spreads around a column laid on it.
+                                           #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
+                                           #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
+                                           #   (chosen)
     fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
     fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
                                            #   cells hold points at least this much and it fits them within this rms

@@ -164,6 +164,7 @@ from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ra
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
 from .model import BodyFit, SECTIONS
 from .params import FitParams
+from .reach import reach_arms
 from .volume import voxel_size, voxelize
 
 __all__ = ["FitParams", "estimate_posture", "fit_section"]
@@ -262,6 +263,9 @@ def _finish(work, pose: Pose, params: FitParams):
                                   and resid.get(n, np.inf) <= params.fit_leg_seen_rms))
                      or (kind_of(n) in ("upper_arm", "forearm")
                          and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params)))
+    # an arm seen only sparsely (held towards a camera), searched as a chain from its shoulder
+    secs, resid, counts, reached = reach_arms(work, secs, resid, counts, unfitted, pose.body, params, back)
+    unfitted = tuple(n for n in unfitted if n not in reached)
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))

@@ -1,0 +1,235 @@
+"""An arm the scan shows only sparsely, searched as a chain from its fitted shoulder (step 7 of
+`recon.posture`).
+
+An arm held towards a camera is seen nearly end-on: the scan holds its fist and the tops of the
+upper arm and forearm, a few points spread along the limb, and the fine adjustment's arm covers
+too little of its column to be trusted (`recon.adjust.arm_doubtful`). The points still say where
+the arm is: a chain (upper arm, then forearm within the elbow's bend) from the fitted shoulder
+whose columns hold points no other section explains, whose HAND END holds points (the fist of an
+arm held out is always seen: it is the part nearest the camera the arm points at), and whose
+axis runs through empty space (no points inside its columns, not inside another section). A
+scan without the arm (cut off, or hidden) has no such points at the hand end, and the arm stays
+unfitted: a wrong arm is never invented.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .adjust import _SEARCH_DIRS, _assign, fit_section
+from .bodymodel import LIMBS, StandardBody
+from .geometry import fibonacci_sphere, perp
+from .params import FitParams
+
+__all__ = ["reach_arms"]
+
+
+def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: StandardBody,
+               params: FitParams, back=None) -> tuple[dict, dict, dict, set]:
+    """Arms listed unfitted, searched again as a chain from the fitted shoulder.
+
+    For an arm with a section in ``listed``, the free points (within an arm's reach of the shoulder,
+    farther than `fit_near_distance` from every other section: the trunk's own surface, which its
+    columns fit to a few cm, is not taken for an arm) are searched for a chain from the upper
+    arm's start (the shoulder, placed with the torso), with the model's lengths and radii:
+
+    - upper arm: every direction of `recon.adjust._SEARCH_DIRS` (800 over the sphere) whose column
+      holds surface points (within 0.6 radii of its surface) in at least `reach_min_upper_bins` of
+      its five fifths (an arm's seen surface runs along it, even sparsely: a direction grazing a
+      patch of the trunk near the shoulder holds points only there), few in its core (at most
+      `reach_max_core_fraction` of them nearer the axis than 0.4 radii: an arm does not cross seen
+      surface), few around it (`reach_max_halo_fraction`, 1.6 to 3 radii out: a limb stands apart,
+      a patch of trunk surface spreads around a column laid on it) and its axis half a radius clear
+      of every other section; the `reach_candidates` with most surface points go on;
+    - forearm: every direction of a 400-direction sphere within the elbow's bend
+      (`match_max_bend`) whose hand end (the last `reach_hand_fraction` of the forearm and one
+      radius beyond, within 1.6 radii of its axis) holds at least `reach_min_hand_points` free
+      points, with the space beyond it (1 to 4 radii past the end) nearly empty (at most
+      `reach_max_core_fraction` of the hand's count: a hand is a free end, the fist of an arm held
+      out is what the camera it points at sees first), counting only points off the upper arm's
+      column (a forearm folded back onto it), few core and halo points, its axis half a radius
+      clear of other sections, its hand not behind the trunk near it (``back``), and at least
+      `fit_min_points` points on the chain.
+
+    The chain with most fifths of its two sections holding points (then most points) is refined,
+    each section on the points it is nearest to (`recon.adjust.fit_section`, model radii and
+    lengths, the forearm from the refined elbow; kept when it fits those points better), and
+    replaces the arm. A scan without the arm (cut off, hidden) has no hand end on free points
+    within reach, and the arm stays listed.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+        The cloud.
+    secs : dict of str -> SectionShape
+        All sections as fitted (the listed arms too, placed where the fine adjustment left them).
+    resid, counts : dict of str -> float, int
+        Residual rms (m) and point count per section.
+    listed : iterable of str
+        Sections the checks list unfitted.
+    body : StandardBody
+        The model at the fitted stature (lengths, radii).
+    params : FitParams
+    back : (3,) float, optional
+        Unit vector towards the body's back (front and back from the data, `recon.joints.front_sign`):
+        a chain whose hand would lie behind the trunk, within `reach_back_clearance` of its
+        columns, is not taken (a hand resting on the back cannot be told from the back's own
+        surface, which the fitted torso's column leaves out by several cm at the shoulder blades:
+        the standing scan with its left forearm cut found a "hand" there).
+
+    Returns
+    -------
+    secs, resid, counts : dict
+        With the found arms' two sections replaced (rms: of their surface points to the model's
+        columns, m; count: points assigned to them).
+    reached : set of str
+        The names of the replaced sections (both of each found arm).
+    """
+    reached = set()
+    listed = set(listed)
+    for prox, dist, root, *_ in LIMBS:
+        if not root.startswith("shoulder") or not ({prox, dist} & listed) or prox not in secs or dist not in secs:
+            continue
+        found = _search_arm(points, secs, prox, dist, body, params, back)
+        if found is None:
+            continue
+        up, fore = found
+        trial = {**secs, prox: up, dist: fore}
+        names, k = _assign(points, trial, params.fit_near_distance)
+        r = {}
+        for n in (prox, dist):
+            own = points[k == names.index(n)]
+            r[n] = float(np.sqrt(np.mean(trial[n].distance(own) ** 2))) if len(own) else np.inf
+            counts = {**counts, n: int(len(own))}
+        secs, resid = trial, {**resid, **r}
+        reached |= {prox, dist}
+    return secs, resid, counts, reached
+
+
+def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams, back=None):
+    """The best chain (upper arm, forearm) of `reach_arms` for one arm, or None."""
+    s = secs[prox].start
+    Lu, Lf = body.section_length(prox), body.section_length(dist)
+    ru, rf = float(body.radii("upper_arm").mean()), float(body.radii("forearm").mean())
+    others = [v for k, v in secs.items() if k not in (prox, dist)]
+    X = points[np.linalg.norm(points - s, axis=1) < Lu + Lf + rf]
+    if len(X) < params.fit_min_points:
+        return None
+    free = np.min(np.stack([o.distance(X) for o in others], 1), 1) > params.fit_near_distance
+    X = X[free]
+    if len(X) < params.fit_min_points:
+        return None
+
+    cos_bend = np.cos(np.radians(params.match_max_bend))
+    # the upper arm's best directions over the sphere, each with the forearm's over a coarser sphere
+    trunk = [secs[n] for n in ("chest", "waist") if n in secs]
+
+    def forearms(d1):
+        d2s = _COARSE_DIRS[_COARSE_DIRS @ d1 >= cos_bend]
+        if back is None or not trunk:
+            return d2s
+        hand = s + Lu * d1 + Lf * d2s
+        behind = (hand - trunk[0].start) @ np.asarray(back, dtype=float) > 0
+        near = np.min(np.stack([t.coords(hand)[0] for t in trunk], 1), 1) < params.reach_back_clearance
+        return d2s[~(behind & near)]
+
+    best = _best_chain(X, s, _SEARCH_DIRS, forearms, (Lu, Lf, ru, rf), others, params, params.reach_candidates)
+    if best is None:
+        return None
+    _, d1, d2 = best
+    e = s + Lu * d1
+    up = secs[prox].replace(start=s, end=e, radii=body.radii("upper_arm"), frame_x=perp(d1))
+    fore = secs[dist].replace(start=e, end=e + Lf * d2, radii=body.radii("forearm"), frame_x=perp(d2))
+    # refined on the points each section is nearest to (least squares, model radii and lengths), the
+    # forearm from the refined elbow; a refinement that fits those points worse is not taken
+    chain = {**secs, prox: up, dist: fore}
+    for n in (prox, dist):
+        names, k = _assign(points, chain, params.fit_near_distance)
+        own = points[k == names.index(n)]
+        if len(own) < params.reach_min_hand_points:
+            continue
+        shp, rms = fit_section(own, chain[n], loss=params.fit_loss, iterations=2, free_end=False, fit_radii=False,
+                             max_shift=params.fit_max_shift, max_turn=np.radians(params.fit_max_turn))
+        if rms <= np.sqrt(np.mean(chain[n].distance(own) ** 2)):
+            chain[n] = shp
+        if n == prox:
+            f = chain[dist]
+            chain[dist] = f.replace(start=chain[prox].end, end=chain[prox].end + Lf * f.axis)
+    return chain[prox], chain[dist]
+
+
+def _columns(X, e, dirs, L, r):
+    """Sections from ``e`` (3,) along ``dirs`` (k, 3), ``L`` long, radius ``r``, against the points ``X``
+    (m, 3): (k, m) whether each point is on the surface (within 0.6 r of it, between 0.15 L and L),
+    in the core (nearer the axis than 0.4 r there), and its position along and distance from the axis."""
+    rel = X - e
+    t = dirs @ rel.T
+    rho = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
+    along = (t > 0.15 * L) & (t < L)
+    return along & (np.abs(rho - r) < 0.6 * r), along & (rho < 0.4 * r), t, rho
+
+
+def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
+    """The best chain from the shoulder ``s`` (3,) on the free points ``X`` (m, 3): upper-arm directions
+    ``d1s`` (k, 3) (the ``keep`` with most surface points among those holding points along 4 fifths of
+    the upper arm, few in its core, not into another section), forearm directions ``d2_of(d1)`` (j, 3);
+    ``dims`` (upper-arm length, forearm length, their radii), m. Returns (score, d1, d2) or None."""
+    Lu, Lf, ru, rf = dims
+    surf_u, core_u, t_u, rho_u = _columns(X, s, d1s, Lu, ru)
+    bins_u = _bins_seen(surf_u, t_u / Lu)
+    n_u = surf_u.sum(1)
+    own_u = (t_u > -ru) & (t_u < Lu + ru) & (rho_u < 1.6 * ru)
+    halo = ((t_u > 0.15 * Lu) & (t_u < Lu) & (rho_u > 1.6 * ru) & (rho_u < 3 * ru)).sum(1)
+    seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u) \
+        & (halo <= params.reach_max_halo_fraction * n_u)
+    seen[seen] = ~_inside(others, s, d1s[seen], Lu, ru)
+    order = np.argsort(-np.where(seen, n_u, -1), kind="stable")[:keep]
+    order = order[seen[order]]
+    best = None
+    for i in order:
+        d1 = d1s[i]
+        e = s + Lu * d1
+        d2s = d2_of(d1)
+        if not len(d2s):
+            continue
+        surf_f, core_f, t, rho = _columns(X, e, d2s, Lf, rf)
+        hand = (t > (1 - params.reach_hand_fraction) * Lf) & (t < Lf + rf) & (rho < 1.6 * rf)
+        beyond = ((t >= Lf + rf) & (t < Lf + 4 * rf) & (rho < 1.6 * rf)).sum(1)
+        # the forearm's own points: not on or in the upper arm's column (a forearm folded back onto it)
+        mine = ~own_u[i][None]
+        hand, surf_f, core_f = hand & mine, surf_f & mine, core_f & mine
+        n_hand = hand.sum(1)
+        n_surf = (surf_f | surf_u[i][None] | hand).sum(1)
+        n_core = (core_f | core_u[i][None]).sum(1)
+        halo_f = ((t > 0.15 * Lf) & (t < Lf + rf) & (rho > 1.6 * rf) & (rho < 3 * rf) & mine).sum(1)
+        ok = (n_hand >= params.reach_min_hand_points) & (halo_f + halo[i] <= params.reach_max_halo_fraction * n_surf) & (beyond <= params.reach_max_core_fraction * n_hand) \
+            & (n_surf >= params.fit_min_points) & (n_core <= params.reach_max_core_fraction * n_surf)
+        if not ok.any():
+            continue
+        ok[ok] = ~_inside(others, e, d2s[ok], Lf, rf)
+        # an arm's seen points run along its whole length: the most fifths holding points first
+        score = np.where(ok, (bins_u[i] + _bins_seen(surf_f | hand, t / Lf)) * (len(X) + 1) + n_surf, -1)
+        j = int(np.argmax(score))
+        if score[j] >= 0 and (best is None or score[j] > best[0]):
+            best = (int(score[j]), d1, d2s[j])
+    return best
+
+
+def _bins_seen(on: np.ndarray, f: np.ndarray, n: int = 5) -> np.ndarray:
+    """(k,) how many of ``n`` equal lengths of a section hold points: ``on`` (k, m) bool, the points on
+    its surface per direction; ``f`` (k, m) their position along it as a fraction of its length."""
+    b = np.clip((f * n).astype(int), 0, n - 1)
+    return sum((on & (b == i)).any(1) for i in range(n))
+
+
+def _inside(others, e: np.ndarray, dirs: np.ndarray, L: float, r: float) -> np.ndarray:
+    """(k,) whether a section from ``e`` (3,) along each of ``dirs`` (k, 3), ``L`` long, of radius ``r``,
+    runs into one of ``others`` (SectionShape): any of 7 samples of its axis, at 0.25 to 1 of its
+    length, nearer than half the radius to another section's surface or inside it (a limb's flesh does
+    not sink into the trunk; an axis grazing the trunk collects the trunk's own points)."""
+    samples = (e + (np.linspace(0.25, 1.0, 7) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
+    return sum((o.coords(samples)[0] < 0.5 * r).reshape(len(dirs), 7).sum(1) for o in others) > 0
+
+
+#: Forearm directions searched (about 10 degrees apart).
+_COARSE_DIRS = fibonacci_sphere(400)
