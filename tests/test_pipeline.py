@@ -319,28 +319,20 @@ def estimated():
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_estimated_posture_on_the_library(estimated):
     """Regression level of the whole pipeline on every shipped posture (measured at this commit:
-    truth among labels mean 0.963, 1/m-scored mean 0.950, min 0.932; bridging mean 0.24 %)."""
+    truth among labels mean 0.964, 1/m-scored mean 0.951, min 0.942; bridging mean 0.24 %)."""
     prop = [r["proposed"] for r in estimated.values()]
     assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.96
-    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.925
+    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.935
     assert np.mean([r["bridging"] for r in prop]) < 0.0035
     for name, r in estimated.items():   # the paper's claim, posture by posture
         assert r["proposed"]["spurious"] < r["simple"]["spurious"], name
 
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
-def test_estimated_posture_bridging_meets_the_issue_target(estimated):
-    """Issue 5: bridging (surface in the air) below 0.5 % of the area on every shipped posture,
-    posture estimated (measured: 0.07 to 0.46 %, woman_standing the highest)."""
-    for name, r in estimated.items():
-        assert r["proposed"]["bridging"] < 0.005, name
-
-
-@pytest.mark.skipif(not _shipped(), reason="no shipped postures")
-@pytest.mark.xfail(strict=True, reason="issue 5's targets with the estimated posture are not reached: "
-                                       "truth among labels >= 95 % on 20/21 postures (arms_forward 0.943), "
-                                       "(bridging < 0.5 % is met on 21/21)")
 def test_estimated_posture_meets_the_issue_targets(estimated):
+    """Issue 5, the pipeline as users run it (posture estimated), on every shipped posture: truth
+    among the point's labels >= 95 % (measured 0.954 seated to 0.980 t_pose) and bridging (surface
+    in the air) below 0.5 % of the area (measured 0.07 to 0.41 %)."""
     for name, r in estimated.items():
         assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name
         assert r["proposed"]["bridging"] < 0.005, name
