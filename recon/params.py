@@ -431,6 +431,13 @@ class FitParams:
     contour_weight: float = 2.0            # 2.3(1), 4.2: weight n of contour voxels, n = 2
     match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
     match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
+    match_arms_first_retry: int = 1        # 2.3(2): 1 = when an upper arm and a leg section of one side both land in
+    #   empty voxels (below `match_min_section_score`), the sections are placed again with the arms before the
+    #   legs and that placement kept when it explains more points and the side's leg scores no lower on the
+    #   volume (a leg scoring lower gave its voxels to the arm) (`recon.match._place_body`): the leg, placed first,
+    #   took the arm's voxels (squat k3: the thigh rose onto the forearm resting over the knee, score -0.26, and
+    #   the upper arm was sent backwards into empty voxels, -0.30; arms first: ua_l fitted). 0 = legs first only
+    #   (chosen: both in empty voxels means one of them is misplaced; the points decide, as between torsos)
     match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
     match_leg_claim_margin: float = 0.02   # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond
                                            # their model radii, m: a real thigh is wider than the standard column, and the

@@ -656,18 +656,38 @@ def test_a_section_pointed_at_the_cameras_is_missing_from_the_scan_and_others_ar
     assert outcome(err, ang, ()) == "pass"
 
 
+def test_an_arm_over_the_knee_is_placed_before_the_leg_takes_it():
+    """`match_arms_first_retry`: squat at k = 3 (forearms resting over the knees): placed legs first,
+    the left thigh rose onto the forearm and the upper arm went backwards into empty voxels, listed
+    unfitted though the scan shows it; placed again arms first, the upper arm and forearm follow
+    their bones (measured 2.2 and 8.9 degrees; elbow 4.3 cm off) and every joint given meets the
+    targets (left leg listed: the scan misses it)."""
+    from benchmarks.fit_table import run_one
+
+    if "squat" not in _library():
+        pytest.skip("library postures missing")
+    import poses
+
+    body = poses.load_body("squat")
+    row = run_one(body, "k3", 0.01)
+    assert row["outcome"] in ("pass", "part")
+    assert "upper_arm_l" not in row["unfitted"] and "forearm_l" not in row["unfitted"]
+    before = run_one(body, "k3", 0.01, FitParams(match_arms_first_retry=0))
+    assert "upper_arm_l" in before["unfitted"]
+
+
 def test_library_fits_are_never_silent_nonsense(library_table):
     """No WRONG fit (median > 10 cm or a joint > 30 cm with no error raised), and the issue's targets
-    met on at least 81 of the 84 runs (measured at this commit: 82; a run with a section listed
+    met on at least 82 of the 84 runs (measured at this commit: 83; a run with a section listed
     unfitted counts only when the scan misses that section, `benchmarks.fit_table.SEEN`)."""
     outcomes = {(r["body"], r["condition"]): r["outcome"] for r in library_table}
     assert not [k for k, o in outcomes.items() if o == "WRONG"]
-    assert sum(o in ("pass", "part") for o in outcomes.values()) >= 81
+    assert sum(o in ("pass", "part") for o in outcomes.values()) >= 82
 
 
-@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 2 of 84 runs miss them: "
-                          "squat k2 (median 2.3 / max 7.2 cm, knee_r; thigh 23 degrees off); "
-                          "squat k3 (ua_l listed unfitted, the scan shows it)")
+@pytest.mark.xfail(strict=True, reason="issue 4's targets are not met on every run: 1 of 84 runs misses them: "
+                          "squat k2 (median 2.3 / max 7.2 cm, knee_r; thigh 23 degrees off: seen from above "
+                          "only, a cylinder fitted even on the true thigh points settles 18-20 degrees off)")
 def test_library_fits_meet_the_issue_targets(library_table):
     assert all(r["outcome"] in ("pass", "part") for r in library_table)
 
