@@ -473,13 +473,8 @@ def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody
         return None
     free = X[np.min(np.stack([o.distance(X) for o in others], 1), 1) > 0.5 * params.fit_near_distance]
     dirs = _SEARCH_DIRS[_SEARCH_DIRS @ p.axis >= np.cos(np.radians(params.match_max_bend))]
-    rel = free - e
-    t = dirs @ rel.T                                                     # (k, m)
-    rad = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
-    score = ((t > 0.15 * L) & (t < L) & (np.abs(rad - r) < 0.6 * r)).sum(1).astype(float)
-    samples = (e + (np.linspace(0.25, 1.0, 4) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
-    inside = sum((o.coords(samples)[0] < 0).reshape(len(dirs), -1).sum(1) for o in others)
-    score = score - 0.25 * score.max() * inside
+    score = limb_columns(free, e, dirs, L, r)[0].sum(1).astype(float)
+    score = score - 0.25 * score.max() * axis_samples_inside(others, e, dirs, L, 0.0, 4)
     start = q.replace(start=e, end=e + L * dirs[int(np.argmax(score))])
     names, k = _assign(points, {**secs, dist: start}, params.fit_near_distance)
     own = points[k == names.index(dist)]
@@ -488,6 +483,27 @@ def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody
     shp, rms = fit_section(own, start, loss=params.fit_loss, iterations=2,
                            end_threshold=params.fit_end_threshold, max_shift=params.fit_max_shift)
     return shp.replace(start=e), rms, len(own)
+
+
+def limb_columns(X, e, dirs, L, r):
+    """Limb columns from ``e`` (3,) along ``dirs`` (k, 3), ``L`` long, radius ``r``, against the
+    points ``X`` (m, 3): (k, m) whether each point is on the surface (within 0.6 r of it, between
+    0.15 L and L), (k, m) whether it is in the core (nearer the axis than 0.4 r there), and (k, m)
+    its position along and distance from the axis. Used by the forearm re-search and by
+    `recon.reach`."""
+    rel = X - e
+    t = dirs @ rel.T
+    rho = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
+    along = (t > 0.15 * L) & (t < L)
+    return along & (np.abs(rho - r) < 0.6 * r), along & (rho < 0.4 * r), t, rho
+
+
+def axis_samples_inside(others, e, dirs, L: float, depth: float, n: int) -> np.ndarray:
+    """(k,) int: over the sections ``others``, how many of ``n`` samples of each axis from ``e``
+    (3,) along ``dirs`` (k, 3), at 0.25 to 1 of the length ``L``, lie nearer than ``depth`` to a
+    section's surface or inside it (a limb's axis does not run into the trunk)."""
+    samples = (e + (np.linspace(0.25, 1.0, n) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
+    return sum((o.coords(samples)[0] < depth).reshape(len(dirs), n).sum(1) for o in others)
 
 
 #: Directions searched for a doubted forearm (`research_forearms`).

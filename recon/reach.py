@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .adjust import _SEARCH_DIRS, _assign, fit_section
+from .adjust import _SEARCH_DIRS, _assign, axis_samples_inside, fit_section, limb_columns
 from .bodymodel import LIMBS, StandardBody
 from .geometry import fibonacci_sphere, perp
 from .params import FitParams
@@ -158,31 +158,20 @@ def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, pa
     return chain[prox], chain[dist]
 
 
-def _columns(X, e, dirs, L, r):
-    """Sections from ``e`` (3,) along ``dirs`` (k, 3), ``L`` long, radius ``r``, against the points ``X``
-    (m, 3): (k, m) whether each point is on the surface (within 0.6 r of it, between 0.15 L and L),
-    in the core (nearer the axis than 0.4 r there), and its position along and distance from the axis."""
-    rel = X - e
-    t = dirs @ rel.T
-    rho = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
-    along = (t > 0.15 * L) & (t < L)
-    return along & (np.abs(rho - r) < 0.6 * r), along & (rho < 0.4 * r), t, rho
-
-
 def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
     """The best chain from the shoulder ``s`` (3,) on the free points ``X`` (m, 3): upper-arm directions
     ``d1s`` (k, 3) (the ``keep`` with most surface points among those holding points along 4 fifths of
     the upper arm, few in its core, not into another section), forearm directions ``d2_of(d1)`` (j, 3);
     ``dims`` (upper-arm length, forearm length, their radii), m. Returns (score, d1, d2) or None."""
     Lu, Lf, ru, rf = dims
-    surf_u, core_u, t_u, rho_u = _columns(X, s, d1s, Lu, ru)
+    surf_u, core_u, t_u, rho_u = limb_columns(X, s, d1s, Lu, ru)
     bins_u = _bins_seen(surf_u, t_u / Lu)
     n_u = surf_u.sum(1)
     own_u = (t_u > -ru) & (t_u < Lu + ru) & (rho_u < 1.6 * ru)
     halo = ((t_u > 0.15 * Lu) & (t_u < Lu) & (rho_u > 1.6 * ru) & (rho_u < 3 * ru)).sum(1)
     seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u) \
         & (halo <= params.reach_max_halo_fraction * n_u)
-    seen[seen] = ~_inside(others, s, d1s[seen], Lu, ru)
+    seen[seen] = axis_samples_inside(others, s, d1s[seen], Lu, 0.5 * ru, 7) == 0
     order = np.argsort(-np.where(seen, n_u, -1), kind="stable")[:keep]
     order = order[seen[order]]
     best = None
@@ -192,7 +181,7 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
         d2s = d2_of(d1)
         if not len(d2s):
             continue
-        surf_f, core_f, t, rho = _columns(X, e, d2s, Lf, rf)
+        surf_f, core_f, t, rho = limb_columns(X, e, d2s, Lf, rf)
         hand = (t > (1 - params.reach_hand_fraction) * Lf) & (t < Lf + rf) & (rho < 1.6 * rf)
         beyond = ((t >= Lf + rf) & (t < Lf + 4 * rf) & (rho < 1.6 * rf)).sum(1)
         # the forearm's own points: not on or in the upper arm's column (a forearm folded back onto it)
@@ -206,7 +195,7 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
             & (n_surf >= params.fit_min_points) & (n_core <= params.reach_max_core_fraction * n_surf)
         if not ok.any():
             continue
-        ok[ok] = ~_inside(others, e, d2s[ok], Lf, rf)
+        ok[ok] = axis_samples_inside(others, e, d2s[ok], Lf, 0.5 * rf, 7) == 0
         # an arm's seen points run along its whole length: the most fifths holding points first
         score = np.where(ok, (bins_u[i] + _bins_seen(surf_f | hand, t / Lf)) * (len(X) + 1) + n_surf, -1)
         j = int(np.argmax(score))
@@ -220,15 +209,6 @@ def _bins_seen(on: np.ndarray, f: np.ndarray, n: int = 5) -> np.ndarray:
     its surface per direction; ``f`` (k, m) their position along it as a fraction of its length."""
     b = np.clip((f * n).astype(int), 0, n - 1)
     return sum((on & (b == i)).any(1) for i in range(n))
-
-
-def _inside(others, e: np.ndarray, dirs: np.ndarray, L: float, r: float) -> np.ndarray:
-    """(k,) whether a section from ``e`` (3,) along each of ``dirs`` (k, 3), ``L`` long, of radius ``r``,
-    runs into one of ``others`` (SectionShape): any of 7 samples of its axis, at 0.25 to 1 of its
-    length, nearer than half the radius to another section's surface or inside it (a limb's flesh does
-    not sink into the trunk; an axis grazing the trunk collects the trunk's own points)."""
-    samples = (e + (np.linspace(0.25, 1.0, 7) * L)[None, :, None] * dirs[:, None, :]).reshape(-1, 3)
-    return sum((o.coords(samples)[0] < 0.5 * r).reshape(len(dirs), 7).sum(1) for o in others) > 0
 
 
 #: Forearm directions searched (about 10 degrees apart).
