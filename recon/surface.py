@@ -717,7 +717,13 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     """
     per = {}
     skipped = []
-    spacing = median_spacing(points) if spacing is None else spacing
+    tree = None   # one KD-tree of the points for the spacing and the rules beyond the paper
+    if spacing is None or (drop_inner and view_dir is not None
+                           and (params.concave_height > 0 or params.carve_margin > 0)):
+        from scipy.spatial import cKDTree
+
+        tree = cKDTree(points)
+    spacing = median_spacing(points, tree=tree) if spacing is None else spacing
     jobs = []
     for j, name in enumerate(SECTIONS):
         if name not in fit.sections:
@@ -759,17 +765,48 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
         faces, sec = faces[keep], sec[keep]
-    longest = max_edge_length(points, faces) if drop_inner and view_dir is not None else None
-    if drop_inner and params.facing_cos > -1 and view_dir is not None:
+    if drop_inner and view_dir is not None:
+        faces, sec = remove_air(points, faces, sec, view_dir, spacing, params, tree)
+    faces = orient_faces(points, faces, sec, fit, view_dir)
+    return faces, sec, skipped
+
+
+def remove_air(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, view_dir: np.ndarray,
+               spacing: float, params: SurfaceParams, tree=None):
+    """The rules of ``proposed`` beyond the paper that remove surface in the air, in order: view
+    consistency (``params.facing_cos``, `view_consistency`), covers of concavities
+    (``params.concave_height``, `over_concavity`) and free-space carving (``params.carve_margin``,
+    `seen_through`); each is tested only on triangles longer than its minimum edge.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+    face_section : (k,) int
+    view_dir : (n, 3) or (3,) float
+        Unit directions toward the cameras.
+    spacing : float
+        Median point spacing, metres.
+    params : SurfaceParams
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+
+    Returns
+    -------
+    faces : (k', 3) int
+    face_section : (k',) int
+    """
+    longest = max_edge_length(points, faces)
+    if params.facing_cos > -1:
         keep = np.ones(len(faces), dtype=bool)
         long_ = np.flatnonzero(longest > params.facing_min_edge * spacing)
         keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
-        faces, sec, longest = faces[keep], sec[keep], longest[keep]
-    tree = None
-    if drop_inner and params.concave_height > 0 and view_dir is not None:
-        from scipy.spatial import cKDTree
+        faces, face_section, longest = faces[keep], face_section[keep], longest[keep]
+    if params.concave_height > 0:
+        if tree is None:
+            from scipy.spatial import cKDTree
 
-        tree = cKDTree(points)
+            tree = cKDTree(points)
         long_ = np.flatnonzero(longest > params.concave_min_edge * spacing)
         ids, inv = np.unique(faces[long_].ravel(), return_inverse=True)
         nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)
@@ -777,11 +814,10 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         lift = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3))
         keep[long_] = ((lift.min(axis=1) <= params.concave_height * spacing)
                        & (lift.mean(axis=1) <= params.concave_mean_height * spacing))
-        faces, sec, longest = faces[keep], sec[keep], longest[keep]
-    if drop_inner and params.carve_margin > 0 and view_dir is not None:
+        faces, face_section, longest = faces[keep], face_section[keep], longest[keep]
+    if params.carve_margin > 0:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
                              params.carve_min_edge, params.carve_reach, params.carve_min_rays,
                              tree=tree, workers=params.workers, longest=longest)
-        faces, sec = faces[keep], sec[keep]
-    faces = orient_faces(points, faces, sec, fit, view_dir)
-    return faces, sec, skipped
+        faces, face_section = faces[keep], face_section[keep]
+    return faces, face_section
