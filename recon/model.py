@@ -107,6 +107,11 @@ class SectionShape:
         """A copy with some fields changed."""
         return replace(self, **changes)
 
+    def moved(self, R: np.ndarray, t: np.ndarray) -> "SectionShape":
+        """The section carried by the rigid motion ``p -> R @ p + t`` (R (3, 3) a rotation, t (3,))."""
+        R = np.asarray(R, dtype=np.float64)
+        return self.replace(start=R @ self.start + t, end=R @ self.end + t, frame_x=R @ self.frame_x)
+
     # -- coordinates --------------------------------------------------------------------------
     def local(self, points: np.ndarray) -> np.ndarray:
         """(n, 3) coordinates of ``points`` (n, 3) in the section frame: x, y across, h along the axis."""
@@ -265,6 +270,13 @@ class BodyFit:
         if self.coarse is not None:
             d["coarse"] = self.coarse.to_dict()
         return d
+
+    def moved(self, R: np.ndarray, t: np.ndarray) -> "BodyFit":
+        """The fit carried by the rigid motion ``p -> R @ p + t`` (R (3, 3) a rotation, t (3,))."""
+        R = np.asarray(R, dtype=np.float64)
+        return replace(self, sections={k: s.moved(R, t) for k, s in self.sections.items()},
+                       joints={k: R @ np.asarray(v, dtype=float) + t for k, v in self.joints.items()},
+                       coarse=self.coarse.moved(R, t) if self.coarse is not None else None)
 
     @classmethod
     def from_dict(cls, d: dict) -> "BodyFit":

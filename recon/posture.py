@@ -199,6 +199,47 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     """
     params = params or FitParams()
     points = check_points(points)
+    if params.fit_facing:
+        fit = _fit_facings(points, params)
+    else:
+        fit = _estimate(points, params)
+    if fit.unfitted:
+        warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): "
+                      f"{', '.join(fit.unfitted)}", stacklevel=2)
+    return fit
+
+
+def _fit_facings(points, params: FitParams) -> BodyFit:
+    """The fit of the cloud turned to its own facing (`facing_frame`), turned back; while it leaves
+    sections unfitted (or is refused), of the cloud turned further by 360 / `fit_facing` degree
+    steps too, and the best of them: fewest sections unfitted, then most points explained (within
+    `fit_coverage_distance`). Every facing is read from the cloud's shape, so a scan turned about
+    the vertical gets the same fit, turned."""
+    R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top)
+    sample = points[::max(1, len(points) // params.fit_max_points + 1)]
+    best, first = None, None
+    for i in range(int(params.fit_facing)):
+        a = 2 * np.pi * i / int(params.fit_facing)
+        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]) @ R0
+        try:
+            # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
+            # (the volume's voxels and the searches would otherwise see different rounding)
+            fit = _estimate(np.round((points - c) @ R.T, 9), params).moved(R.T, c)
+        except ReconError as e:
+            first = first or e
+            continue
+        if not fit.unfitted:
+            return fit
+        score = (-len(fit.unfitted), explained_fraction(sample, fit.sections, params.fit_coverage_distance))
+        if best is None or score > best[0]:
+            best = (score, fit)
+    if best is None:
+        raise first
+    return best[1]
+
+
+def _estimate(points, params: FitParams) -> BodyFit:
+    """`estimate_posture` on checked points, as they lie."""
     times = {}
     t0 = time.perf_counter()
     rng = np.random.default_rng(params.fit_seed)
@@ -228,10 +269,51 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
     else:
         raise first
     times["fine"] = time.perf_counter() - t0
-    if unfitted:
-        warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): {', '.join(unfitted)}", stacklevel=2)
     fit.times.update(times)
     return fit
+
+
+def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+    """The turn about the vertical that brings a body to a facing read from its own shape.
+
+    Across the shoulders is a body's widest horizontal spread in nearly every posture: the points
+    between ``band`` and ``top`` of the cloud's height are turned so that their principal
+    horizontal direction is +x, and so that the third moment of the whole cloud along y is
+    negative (limbs held forward, feet, a bent knee's thigh stick out in front: the subject then
+    mostly faces -y, the facing of the standard body; the fit reads front and back from the points
+    anyway). Both depend on the cloud's shape only, so a cloud turned about the vertical (and moved
+    sideways) comes to the same place.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    band, top : float
+        Fractions of the cloud's height bounding the slab read (0 <= band < top <= 1); fewer than
+        10 points there: the whole cloud is read.
+
+    Returns
+    -------
+    R : (3, 3) float
+        Rotation about +z.
+    c : (3,) float
+        The cloud's horizontal centroid (z = 0); the turned cloud is ``(points - c) @ R.T``.
+    """
+    if not 0 <= band < top <= 1:
+        raise ReconError(f"parameters fit_facing_band={band!r}, fit_facing_band_top={top!r}: must "
+                         f"satisfy 0 <= fit_facing_band < fit_facing_band_top <= 1")
+    c = np.array([*points[:, :2].mean(axis=0), 0.0])
+    z = points[:, 2]
+    lo, hi = z.min() + np.array([band, top]) * (z.max() - z.min())
+    sel = (z >= lo) & (z <= hi)
+    xy = points[sel, :2] if sel.sum() >= 10 else points[:, :2]
+    xy = xy - xy.mean(axis=0)
+    _, vec = np.linalg.eigh(xy.T @ xy)
+    ax = vec[:, 1]                                   # widest direction
+    fwd = np.array([-ax[1], ax[0]])                  # +y of the turned frame
+    if np.mean(((points[:, :2] - c[:2]) @ fwd) ** 3) > 0:
+        ax, fwd = -ax, -fwd
+    R = np.array([[ax[0], ax[1], 0.0], [fwd[0], fwd[1], 0.0], [0.0, 0.0, 1.0]])
+    return R, c
 
 
 def _finish(work, pose: Pose, params: FitParams):
