@@ -7,7 +7,11 @@ Usage::
 
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
-with it; ``k2``, ``k3``: k = 2, 3; any of them with ``_noiseMM`` appended: range noise of that sigma, mm),
+with it (the fit reads the facing from the cloud's shape, so this repeats ``k1`` turned: a check
+that it does); ``k1_turn137``: the body turned 137 degrees in the scanner before the scan (the
+cameras see it from another side: other occlusions); ``k2``, ``k3``: k = 2, 3; any of them with
+``_noiseMM`` appended: range noise of that sigma, mm; ``k1_without-forearm_l+upper_arm_l``: a
+partial body, the points of those sections cut from the scan, which the fit must list unfitted),
 fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error
 (metres, over the joints the fit gives), the worst limb section's angle to its true bone (degrees,
 over the fitted limb sections), the sections listed unfitted (``*``: the scan shows it), the outcome
@@ -33,6 +37,7 @@ from __future__ import annotations
 import argparse
 import time
 import warnings
+from dataclasses import replace
 
 import numpy as np
 
@@ -109,10 +114,20 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
 
     k = int(condition.split("_")[0][1:])
     noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
+    if "turn" in condition:
+        R = rot_z(float(condition.split("turn")[1].split("_")[0]))
+        body = replace(body, vertices=body.vertices @ R.T, joints=body.joints @ R.T)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k, noise_sigma=noise))
-    pts = scan.points
+    pts, gt = scan.points, scan.gt_section
+    if "without-" in condition:
+        # a partial body: the points of the named sections cut from the scan
+        from recon.model import SECTIONS
+
+        cut = condition.split("without-")[1].split("_noise")[0].split("_rot")[0].split("+")
+        keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
+        pts, gt = pts[keep], gt[keep]
     joints = body.joint_dict()
     if "rot" in condition:
         R = rot_z(float(condition.split("rot")[1].split("_")[0]))
@@ -129,7 +144,7 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
         return row
     row["seconds"] = time.perf_counter() - t0
     err, ang = score_fit(fit, joints)
-    seen = seen_fractions(body, scan.gt_section, resolution)
+    seen = seen_fractions(body, gt, resolution)
     row.update(median=float(np.median(list(err.values()))), max=max(err.values()),
                worst_joint=max(err, key=err.get), angle=max(ang.values(), default=np.nan),
                unfitted=tuple(fit.unfitted), seen={n: seen[n] for n in fit.unfitted},
@@ -152,7 +167,9 @@ def main(argv=None) -> int:
     ap.add_argument("--resolution", type=float, default=0.01, help="scan resolution, metres (default 0.01)")
     ap.add_argument("--bodies", default="", help="comma-separated library names (default: all shipped)")
     ap.add_argument("--conditions", default=",".join(CONDITIONS),
-                    help="comma-separated: k1, k2, k3, kK_rotDEG, any of them + _noiseMM "
+                    help="comma-separated: k1, k2, k3, kK_rotDEG (scan turned), kK_turnDEG (body turned "
+                         "before the scan), kK_without-SECTION+SECTION (those sections cut from the scan), "
+                         "any of them + _noiseMM "
                          "(default k1,k1_rot137,k2,k3)")
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
     a = ap.parse_args(argv)

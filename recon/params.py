@@ -576,12 +576,13 @@ class FitParams:
                                            # matched at 1.20 m 6.9 -> under 4.8; 0 (always) gave median 2.2 (chosen)
     fit_facing: int = 4                    # 2.1: fit the cloud turned about the vertical to a facing read from its own
                                            # shape (`recon.posture.facing_frame`), so that a scan turned about the
-                                           # vertical gets the same fit, turned; while sections stay unfitted, also
-                                           # turned further in 360 / fit_facing degree steps, the best fit kept
-                                           # (`recon.posture._fit_facings`); 0 = fit the cloud as it lies. Measured on
-                                           # the library (10 mm, k = 1, 2, 3, 63 scans), targets met: as it lies 62 but
-                                           # 73 of 84 turned by other angles (2 WRONG); own facing only 59; 4 facings
-                                           # 62, 3 scans fitted more than once (chosen)
+                                           # vertical gets the same fit, turned; when refused or with fit_facing_retry
+                                           # sections unfitted, also turned further in 360 / fit_facing degree steps,
+                                           # the best fit kept (`recon.posture._fit_facings`); 0 = fit the cloud as it
+                                           # lies (chosen; measured in the module docstring of recon.posture)
+    fit_facing_retry: int = 3              # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
+                                           # its way; a scan missing one limb is not fitted again, each try being a
+                                           # chance to place the limb on points not its own; chosen)
     fit_facing_band: float = 0.70          # 2.1: the facing is read from the points between this and
     fit_facing_band_top: float = 0.85      #   this fraction of the cloud's height (the shoulders), where the widest
                                            # horizontal spread is across the body (chosen)

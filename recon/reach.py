@@ -48,7 +48,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
       `reach_max_core_fraction` of the hand's count: a hand is a free end, the fist of an arm held
       out is what the camera it points at sees first), counting only points off the upper arm's
       column (a forearm folded back onto it), few core and halo points, its axis half a radius
-      clear of other sections, its hand not behind the trunk near it (``back``), and at least
+      clear of other sections, its hand not behind the trunk near it or the thighs (``back``), and at least
       `fit_min_points` points on the chain.
 
     The chain with most fifths of its two sections holding points (then most points) is refined,
@@ -73,9 +73,10 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     back : (3,) float, optional
         Unit vector towards the body's back (front and back from the data, `recon.joints.front_sign`):
         a chain whose hand would lie behind the trunk, within `reach_back_clearance` of its
-        columns, is not taken (a hand resting on the back cannot be told from the back's own
-        surface, which the fitted torso's column leaves out by several cm at the shoulder blades:
-        the standing scan with its left forearm cut found a "hand" there).
+        or the thighs' columns (before or after its refinement), is not taken (a hand resting on
+        the back cannot be told from the back's own surface, which the fitted torso's column
+        leaves out by several cm at the shoulder blades: the standing scan with its left forearm
+        cut found a "hand" there; in another facing, one on the buttocks below the waist's column).
 
     Returns
     -------
@@ -123,15 +124,19 @@ def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, pa
     cos_bend = np.cos(np.radians(params.match_max_bend))
     # the upper arm's best directions over the sphere, each with the forearm's over a coarser sphere
     trunk = [secs[n] for n in ("chest", "waist") if n in secs]
+    # the back of the trunk, the buttocks and the backs of the thighs: the body's own surface
+    rear = trunk + [secs[n] for n in ("thigh_l", "thigh_r") if n in secs]
+
+    def behind_body(hand):
+        """(k,) bool: the hands (k, 3) behind the trunk, within the clearance of its rear."""
+        behind = (hand - trunk[0].start) @ np.asarray(back, dtype=float) > 0
+        return behind & (np.min(np.stack([t.coords(hand)[0] for t in rear], 1), 1) < params.reach_back_clearance)
 
     def forearms(d1):
         d2s = _COARSE_DIRS[_COARSE_DIRS @ d1 >= cos_bend]
         if back is None or not trunk:
             return d2s
-        hand = s + Lu * d1 + Lf * d2s
-        behind = (hand - trunk[0].start) @ np.asarray(back, dtype=float) > 0
-        near = np.min(np.stack([t.coords(hand)[0] for t in trunk], 1), 1) < params.reach_back_clearance
-        return d2s[~(behind & near)]
+        return d2s[~behind_body(s + Lu * d1 + Lf * d2s)]
 
     best = _best_chain(X, s, _SEARCH_DIRS, forearms, (Lu, Lf, ru, rf), others, params, params.reach_candidates)
     if best is None:
@@ -155,6 +160,8 @@ def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, pa
         if n == prox:
             f = chain[dist]
             chain[dist] = f.replace(start=chain[prox].end, end=chain[prox].end + Lf * f.axis)
+    if back is not None and trunk and behind_body(chain[dist].end[None])[0]:
+        return None   # refined onto the body's rear
     return chain[prox], chain[dist]
 
 
