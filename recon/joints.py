@@ -358,13 +358,16 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     ride with the chest: each turned shoulder is taken onto its upper arm's axis (the axis is
     fitted on the arm's own points), the upper arm slides along it and its elbow with it, and the
     forearm keeps its end (the fingertips are measured). Across is the chest's wide axis, taken
-    across the head's axis. Without a head, or with fewer than 10 points in the slab, ``secs`` is
-    returned unchanged.
+    across the head's axis; the head's axis leans with a misplaced top, so the slab's midpoint
+    falls a little short of the neck (extending the line from the crown through it instead
+    overshot: leaning's neck, 6.2 cm to the side, ended 1.1 cm to the other side, against 0.2 cm).
+    Without a head, with fewer than 10 points in the slab, or with the slab wider than the head
+    (not the neck alone: arms raised beside it, shoulders), ``secs`` is returned unchanged.
 
-    Estimated posture, 21 shipped bodies (`paper` scans, the clustering on the same fits): the
-    neck's left-right error to the true neck joint 1.3 cm mean, 6.4 cm largest (leaning) -> 0.3,
-    0.5 cm; section accuracy (truth among the labels) leaning 0.944 -> 0.964, standing 0.963 ->
-    0.968, mean 0.960 -> 0.962, none more than 0.001 lower.
+    Estimated posture, 21 shipped bodies (`paper` scans): the neck's left-right error to the true
+    neck joint 0.8 cm mean, 6.2 cm largest (leaning) -> 0.1, 0.3 cm; section accuracy (truth
+    among the labels, ``python -m benchmarks.recon_table --estimated``) leaning 0.944 -> 0.964,
+    standing 0.963 -> 0.968, mean 0.960 -> 0.962, none more than 0.001 lower.
 
     Parameters
     ----------
@@ -393,6 +396,8 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     if sel.sum() < 10:
         return secs
     lo, hi = np.quantile(x[sel], [q, 1.0 - q])
+    if 0.5 * (hi - lo) >= float(hd.radii.max()):
+        return secs    # wider than the head: not the neck alone (arms or shoulders in the slab)
     move = 0.5 * float(lo + hi) * lat
     top = c.end + move
     d_old, d_new = c.axis, unit(top - c.start)
