@@ -6,8 +6,8 @@
 `split_knees` and `joint_caps` make the reported sections meet where the body file's section labels
 change, and `joint_caps` (with `shape_limbs`) gives the upper arms and lower legs the labels'
 cross-sections, deeper front to back than the fit's round columns, and the upper arms a start cap
-over the shoulder; `centre_neck` (from `split_torso`) puts the chest's top between the sides of the
-neck seen in the points, the head and the shoulders following.
+over the shoulder; `centre_neck` (before the joints are placed) puts the chest's top between the
+sides of the neck seen in the points, the head and the shoulders following.
 """
 
 from __future__ import annotations
@@ -316,9 +316,6 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: flo
     Estimated posture, 21 shipped bodies, error of the cut against the plane across the column that
     best separates the true labels: mean -0.95, sd 1.83, largest 4.5 cm (0.625 of the column) ->
     +0.11, 1.25, 2.8 cm; section accuracy (truth among the labels) mean 0.950 -> 0.954.
-
-    With ``points``, the chest's top end is then centred between the sides of the neck, the head
-    and the shoulders following (`centre_neck`).
     """
     if "waist" not in secs or "chest" not in secs:
         return secs
@@ -333,7 +330,7 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: flo
     radii = (low * w.radii + c.length * c.radii) / (low + c.length)
     chest = c.replace(start=cut, radii=radii, caps=np.array([min(c.caps[0], radii.min()), c.caps[1]]))
     out = {**secs, "waist": w.replace(end=cut), "chest": chest}
-    return centre_neck(points, out) if points is not None else out
+    return out
 
 
 #: `centre_neck`: the neck's sides are sought in a slab from ``NECK_SLAB[0]`` to ``NECK_SLAB[1]``
@@ -371,7 +368,12 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     Estimated posture, 21 shipped bodies (`paper` scans): the neck's left-right error to the true
     neck joint 0.8 cm mean, 6.2 cm largest (leaning) -> 0.1, 0.3 cm; section accuracy (truth
     among the labels, ``python -m benchmarks.recon_table --estimated``) leaning 0.944 -> 0.964,
-    standing 0.963 -> 0.968, mean 0.960 -> 0.962, none more than 0.001 lower.
+    standing 0.963 -> 0.968, mean 0.960 -> 0.962, none more than 0.001 lower. Made before the
+    joints are placed (`recon.posture`), so that the neck, shoulder and elbow joints follow: then
+    leaning 0.967, and `benchmarks.fit_table` (84 runs, 10 mm) mean median joint error 2.39 ->
+    2.35 cm, mean largest 4.84 -> 4.69 cm (leaning k1 3.2 / 6.8 -> 2.7 / 4.2 cm), no outcome changed.
+    `recon.adjust._neck_shift` does the same during the fine adjustment, within 25 degrees of the
+    waist's axis; this one follows the head's axis and carries the shoulders.
 
     Parameters
     ----------

@@ -145,7 +145,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
    when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
    silently as a fit.
-8. The joints are the rig's (the body file format's); the sections reported in the `BodyFit` meet
+8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
+   head and shoulders following (`recon.joints.centre_neck`). The joints are the rig's (the body
+   file format's); the sections reported in the `BodyFit` meet
    where the body file's section labels change, which is not always at a joint: the torso splits
    into waist and chest at `recon.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
@@ -172,8 +174,8 @@ from . import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from .cloud import check_points
 from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
-from .joints import (SHANK_RANGE, front_sign, joint_caps, place_joints, shank_ratio, split_hips, split_knees,
-                     split_torso, swap_sides)
+from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, shank_ratio, split_hips,
+                     split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
 from .model import BodyFit, SECTIONS
 from .params import FitParams
@@ -395,6 +397,7 @@ def _finish(work, pose: Pose, params: FitParams):
                          f"{100 * explained:.0f}% of the points (a body scan: over "
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
+    fitted = centre_neck(work, fitted)
     joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
     fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), joints, pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
