@@ -554,6 +554,15 @@ class FitParams:
                                            #   (m): the points show the limb the volume missed. Measured: the raised
                                            #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched
                                            #   into a gap 0.35-0.40 / 14-17 mm (chosen)
+    fit_arm_clearance: float = 0.7         # 2.3(2): an arm section whose axis comes nearer the trunk's fitted columns
+                                           #   than this many model radii of it (a forearm at 0.25 to 1 of its
+                                           #   length, an upper arm, which starts at the shoulder, at 0.75 and 1) is
+                                           #   unfitted: an arm against the body keeps its axis a radius outside the
+                                           #   skin, which the trunk's columns fit to 1-2 cm; one nearer lies on the
+                                           #   trunk's own surface. Measured (10 mm, the library k1/k3/turned 200):
+                                           #   real forearms 2.2 radii and more (arm_across, arms_close), upper arms
+                                           #   1.3 (heavy_standing); arm sections placed on the trunk of scans without
+                                           #   them 0.4 and less (chosen)
     fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
