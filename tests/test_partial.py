@@ -75,3 +75,20 @@ def test_a_forearm_on_the_trunks_surface_is_not_an_arm(offset, on):
     body, secs = _trunk_and_arm(offset)
     assert _on_trunk("forearm_l", secs, body, FitParams()) is on
     assert _on_trunk("chest", secs, body, FitParams()) is False
+
+
+@pytest.mark.xfail(strict=True, reason="legs cut from the scan are not listed: the coarse match sizes the body from "
+                          "its leg chains (recon.match) and places the lower legs on the thigh stumps, the thighs on "
+                          "the pelvis; walking without its lower legs: nothing listed, median 11.9 / max 44.8 cm "
+                          "(ankles), stature judged 1.22 m (true 1.71). Even at the true stature (fit_stature) 4 of "
+                          "6 leg cuts on standing / t_pose / arms_forward stay WRONG (front and back from the legs, "
+                          "recon.joints.front_sign, flipped: wrists 52-145 cm off)")
+def test_cut_lower_legs_are_listed_and_the_rest_is_near_the_truth():
+    cut = ("lower_leg_l", "lower_leg_r")
+    pts, joints = _cut_scan("walking", cut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = estimate_posture(pts)
+    assert set(cut) <= set(fit.unfitted)
+    err, _ = score_fit(fit, joints)
+    assert max(err.values()) <= 0.15
