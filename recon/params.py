@@ -548,6 +548,11 @@ class FitParams:
                                            #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
                                            #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
                                            #   (chosen)
+    reach_max_shared_fraction: float = 0.5  # 2.3(2): ... and not taken when more than this fraction of the points
+                                           #   either found section is nearest to lie within fit_coverage_distance of
+                                           #   another section's surface (a limb explains points no other explains).
+                                           #   Measured (10 mm): found arms of arms_forward k1/k3 and cut scans at most
+                                           #   0.12; a "forearm" found on the other forearm and the chest 0.77 (chosen)
     fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
     fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
                                            #   cells hold points at least this much and it fits them within this rms

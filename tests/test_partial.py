@@ -77,6 +77,22 @@ def test_a_forearm_on_the_trunks_surface_is_not_an_arm(offset, on):
     assert _on_trunk("chest", secs, body, FitParams()) is False
 
 
+def test_points_on_another_sections_surface_are_shared():
+    """`recon.reach._shared_fraction`: a limb explains points no other section explains; points of
+    the chest's surface under a forearm laid on it are shared, points around a free forearm are not."""
+    from recon.reach import _shared_fraction
+
+    body, secs = _trunk_and_arm(0.0)
+    on_chest = secs["chest"].surface_points(48, 20)
+    on_chest = on_chest[np.abs(on_chest[:, 1]) < 0.05]          # the strip under the forearm
+    free = {**secs, "forearm_l": secs["forearm_l"].replace(start=secs["forearm_l"].start + [0.3, 0, 0],
+                                                           end=secs["forearm_l"].end + [0.3, 0, 0])}
+    own = free["forearm_l"].surface_points(24, 12)
+    assert _shared_fraction(on_chest, secs, "forearm_l", 0.02) > 0.9
+    assert _shared_fraction(own, free, "forearm_l", 0.02) == 0.0
+    assert _shared_fraction(own[:0], free, "forearm_l", 0.02) == 0.0
+
+
 @pytest.mark.xfail(strict=True, reason="legs cut from the scan are not listed: the coarse match sizes the body from "
                           "its leg chains (recon.match) and places the lower legs on the thigh stumps, the thighs on "
                           "the pelvis; walking without its lower legs: nothing listed, median 11.9 / max 44.8 cm "
