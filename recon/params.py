@@ -548,12 +548,26 @@ class FitParams:
                                            #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
                                            #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
                                            #   (chosen)
+    reach_max_shared_fraction: float = 0.5  # 2.3(2): ... and not taken when more than this fraction of the points
+                                           #   either found section is nearest to lie within fit_coverage_distance of
+                                           #   another section's surface (a limb explains points no other explains).
+                                           #   Measured (10 mm): found arms of arms_forward k1/k3 and cut scans at most
+                                           #   0.12; a "forearm" found on the other forearm and the chest 0.77 (chosen)
     fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
     fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
                                            #   cells hold points at least this much and it fits them within this rms
                                            #   (m): the points show the limb the volume missed. Measured: the raised
                                            #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched
                                            #   into a gap 0.35-0.40 / 14-17 mm (chosen)
+    fit_arm_clearance: float = 0.7         # 2.3(2): an arm section whose axis comes nearer the trunk's fitted columns
+                                           #   than this many model radii of it (a forearm at 0.25 to 1 of its
+                                           #   length, an upper arm, which starts at the shoulder, at 0.75 and 1) is
+                                           #   unfitted: an arm against the body keeps its axis a radius outside the
+                                           #   skin, which the trunk's columns fit to 1-2 cm; one nearer lies on the
+                                           #   trunk's own surface. Measured (10 mm, the library k1/k3/turned 200):
+                                           #   real forearms 2.2 radii and more (arm_across, arms_close), upper arms
+                                           #   1.3 (heavy_standing); arm sections placed on the trunk of scans without
+                                           #   them 0.4 and less (chosen)
     fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)

@@ -131,7 +131,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
    when the check no longer doubts it and its axis does not run inside another section
    (`recon.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
-   points). A section in empty voxels whose seen surface fits it (shell
+   points). An arm section whose axis comes within `fit_arm_clearance` of its radii of the
+   trunk's fitted columns is listed (`_on_trunk`; also after `recon.reach`): an arm against the
+   body keeps its axis a radius outside the skin, and one nearer is a patch of the trunk's own
+   surface (scans without an arm found a forearm across the chest, an upper arm down its front).
+   A section in empty voxels whose seen surface fits it (shell
    score at least `match_min_shell_score`) is kept, and so is a leg section whose fitted surface the
    points cover (`fit_leg_seen_cover`, `fit_leg_seen_rms`: a thigh raised level, seen from the
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
@@ -365,10 +369,11 @@ def _finish(work, pose: Pose, params: FitParams):
                                   and cover.get(n, 0.0) >= params.fit_leg_seen_cover
                                   and resid.get(n, np.inf) <= params.fit_leg_seen_rms))
                      or (kind_of(n) in ("upper_arm", "forearm")
-                         and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params)))
+                         and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params))
+                     or _on_trunk(n, secs, pose.body, params))
     # an arm seen only sparsely (held towards a camera), searched as a chain from its shoulder
     secs, resid, counts, reached = reach_arms(work, secs, resid, counts, unfitted, pose.body, params, back)
-    unfitted = tuple(n for n in unfitted if n not in reached)
+    unfitted = tuple(n for n in unfitted if n not in reached or _on_trunk(n, secs, pose.body, params))
     # a distal section hangs from its proximal one: without it, its position means nothing
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
         n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
@@ -419,6 +424,28 @@ def _head_seen(points, chest, body: StandardBody, min_points: int) -> bool:
     rho2 = np.einsum("ij,ij->i", rel, rel) - h * h
     near = (h > 0) & (h < body.section_length("head")) & (rho2 < (1.5 * body.radii("head").max()) ** 2)
     return int(near.sum()) >= min_points
+
+
+def _on_trunk(name: str, secs: dict, body: StandardBody, params: FitParams) -> bool:
+    """Whether the arm section ``name`` lies on the trunk's own surface: a sample of its axis nearer
+    the fitted chest's or waist's surface than `fit_arm_clearance` model radii of the section, or
+    inside them (a forearm's axis at 0.25, 0.5, 0.75 and 1 of its length; an upper arm's, which
+    starts inside the shoulder, at 0.75 and 1: the elbow's half).
+
+    An arm against the body (hanging beside the chest, across it, a hand on the hip) keeps its
+    axis a radius outside the skin, which the trunk's columns fit to 1-2 cm; an "arm" nearer is
+    a patch of the trunk's surface that its columns leave out (a breast, the shoulder blades, the
+    side of the chest): scans without the arm found a forearm across the chest (walking, 134
+    degrees off, wrist 55 cm off) and an upper arm down the front of the chest (arms_forward,
+    elbow 32 cm off). Not an arm section: False."""
+    kind = kind_of(name)
+    if kind not in ("upper_arm", "forearm") or name not in secs:
+        return False
+    s = secs[name]
+    f = np.linspace(0.25, 1.0, 4) if kind == "forearm" else np.array([0.75, 1.0])
+    samples = s.start + f[:, None] * (s.end - s.start)
+    clear = params.fit_arm_clearance * float(body.radii(kind).mean())
+    return any(float(secs[t].coords(samples)[0].min()) < clear for t in ("chest", "waist") if t in secs)
 
 
 def _arm_behind(d: np.ndarray, R: np.ndarray, back: np.ndarray) -> bool:

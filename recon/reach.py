@@ -50,6 +50,11 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
       column (a forearm folded back onto it), few core and halo points, its axis half a radius
       clear of other sections, its hand not behind the trunk near it or the thighs (``back``), and at least
       `fit_min_points` points on the chain.
+    - a chain found is not taken when, with every found arm in place, more than
+      `reach_max_shared_fraction` of the points either section is nearest to lie within `fit_coverage_distance` of another section's surface:
+      a limb explains points no other section explains (arm_across turned 90 degrees without its
+      left forearm: a "forearm" found on 44 points, 77 % of them on the other forearm, the upper arm
+      and the chest, wrist 49 cm off; found arms of arms_forward: at most 12 %).
 
     The chain with most fifths of its two sections holding points (then most points) is refined,
     each section on the points it is nearest to (`recon.adjust.fit_section`, model radii and
@@ -88,6 +93,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     """
     reached = set()
     listed = set(listed)
+    secs0, resid0, counts0 = secs, resid, counts
     for prox, dist, root, *_ in LIMBS:
         if not root.startswith("shoulder") or not ({prox, dist} & listed) or prox not in secs or dist not in secs:
             continue
@@ -97,14 +103,37 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
         up, fore = found
         trial = {**secs, prox: up, dist: fore}
         names, k = _assign(points, trial, params.fit_near_distance)
-        r = {}
+        r, c = {}, {}
         for n in (prox, dist):
             own = points[k == names.index(n)]
             r[n] = float(np.sqrt(np.mean(trial[n].distance(own) ** 2))) if len(own) else np.inf
-            counts = {**counts, n: int(len(own))}
-        secs, resid = trial, {**resid, **r}
+            c[n] = int(len(own))
+        secs, resid, counts = trial, {**resid, **r}, {**counts, **c}
         reached |= {prox, dist}
+    if reached:
+        # with every found arm in place: an arm whose points are another section's surface is not an arm
+        # (sections still listed are not placed: they do not count)
+        placed = {n: v for n, v in secs.items() if n in reached or n not in listed}
+        names, k = _assign(points, placed, params.fit_near_distance)
+        for prox, dist, *_ in LIMBS:
+            if prox in reached and any(
+                    _shared_fraction(points[k == names.index(n)], placed, n, params.fit_coverage_distance)
+                    > params.reach_max_shared_fraction for n in (prox, dist)):
+                secs = {**secs, prox: secs0[prox], dist: secs0[dist]}
+                resid = {**resid, **{n: resid0[n] for n in (prox, dist) if n in resid0}}
+                counts = {**counts, **{n: counts0[n] for n in (prox, dist) if n in counts0}}
+                reached -= {prox, dist}
     return secs, resid, counts, reached
+
+
+def _shared_fraction(own, secs: dict, name: str, near: float) -> float:
+    """The fraction of the points ``own`` (k, 3) of section ``name`` lying within ``near`` metres of
+    another section's surface in ``secs`` (0 without points): a limb explains points no other
+    section explains."""
+    if not len(own):
+        return 0.0
+    d = np.min(np.stack([v.distance(own) for n, v in secs.items() if n != name], 1), 1)
+    return float(np.mean(d < near))
 
 
 def _search_arm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams, back=None):
