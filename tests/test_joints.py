@@ -107,8 +107,10 @@ def test_reported_lower_leg_reaches_the_labelled_calf(limb_scans):
     """Estimated posture, `paper` scans, standing and seated: the reported lower leg's larger
     radius runs front to back as the oracle's, and it reaches more of the points labelled lower leg
     than the fitted round one did (the foot, in the lower leg's labels, stays out of reach: measured
-    0.52-0.84 -> 0.64-0.85, mean gain 0.095), while the thigh's points it reaches grow by less
-    than 2 % of them (measured 0.4-1.8 %)."""
+    0.50-0.91 -> 0.63-0.93, mean gain 0.086), while the thigh's points it reaches grow by less
+    than 4 % of them (measured 0.4-0.8 % standing and arms_close, 2.9-3.6 % seated: its deeply bent
+    knees, on the lower leg's axis since `recon.joints.bent_knee`, start the lower legs nearer the
+    thigh's underside; seated's section accuracy rose 0.956 -> 0.964 with that change)."""
     gains = []
     for name, (p, gt, fit, oracle) in limb_scans.items():
         for side in ("l", "r"):
@@ -123,6 +125,6 @@ def test_reported_lower_leg_reaches_the_labelled_calf(limb_scans):
                 return float(np.mean(np.abs(shape.coords(q)[0]) < 0.3 * shape.width))
 
             assert reach(rep, leg) > reach(round_leg, leg), (name, sec)
-            assert reach(rep, thigh) < reach(round_leg, thigh) + 0.03, (name, sec)
+            assert reach(rep, thigh) < reach(round_leg, thigh) + 0.04, (name, sec)
             gains.append(reach(rep, leg) - reach(round_leg, leg))
     assert np.mean(gains) > 0.05
