@@ -35,6 +35,7 @@ A summary line counts the outcomes.
 from __future__ import annotations
 
 import argparse
+import re
 import time
 import warnings
 from dataclasses import replace
@@ -59,6 +60,13 @@ def rot_z(deg: float) -> np.ndarray:
     """(3, 3) rotation by ``deg`` degrees about +z."""
     a = np.radians(deg)
     return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1.0]])
+
+
+def turned_body(body, deg: float):
+    """``body`` turned ``deg`` degrees about the vertical (vertices and joints), as if standing so
+    in the scanner."""
+    R = rot_z(deg)
+    return replace(body, vertices=body.vertices @ R.T, joints=body.joints @ R.T)
 
 
 def score_fit(fit, joints: dict) -> tuple[dict, dict]:
@@ -115,8 +123,7 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     k = int(condition.split("_")[0][1:])
     noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
     if "turn" in condition:
-        R = rot_z(float(condition.split("turn")[1].split("_")[0]))
-        body = replace(body, vertices=body.vertices @ R.T, joints=body.joints @ R.T)
+        body = turned_body(body, float(condition.split("turn")[1].split("_")[0]))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k, noise_sigma=noise))
@@ -125,7 +132,7 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
         # a partial body: the points of the named sections cut from the scan
         from recon.model import SECTIONS
 
-        cut = condition.split("without-")[1].split("_noise")[0].split("_rot")[0].split("+")
+        cut = re.split(r"_(?:noise|rot|turn)", condition.split("without-")[1])[0].split("+")
         keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
         pts, gt = pts[keep], gt[keep]
     joints = body.joint_dict()

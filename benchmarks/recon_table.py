@@ -77,12 +77,9 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
 
     body = load_body(name)
     if turn:
-        from dataclasses import replace
+        from .fit_table import turned_body
 
-        from .fit_table import rot_z
-
-        R = rot_z(turn)
-        body = replace(body, vertices=body.vertices @ R.T, joints=body.joints @ R.T)
+        body = turned_body(body, turn)
     s = scan(body, preset("paper"))
     fit = estimate_posture(s.points, view_dir=s.view_dir) if estimated else fit_from_body(body)
     truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))

@@ -12,6 +12,7 @@ import numpy as np
 from .bodymodel import LIMBS, StandardBody
 from .geometry import cross, fibonacci_sphere, perp, turn_between, unit
 from .joints import ELBOW_STRAIGHT_DEG as _ELBOW_STRAIGHT_DEG
+from .joints import neck_sides
 from .match import Pose
 from .model import SectionShape
 from .params import FitParams
@@ -278,14 +279,8 @@ def _neck_shift(points, chest: SectionShape, up: np.ndarray, body: StandardBody)
     """
     H = body.stature
     lat = unit(chest.frame_x - up * (chest.frame_x @ up))
-    fwd = cross(up, lat)
-    rel = points - chest.end
-    h, x, y = rel @ up, rel @ lat, rel @ fwd
-    sel = (h > 0.02 * H) & (h < 0.06 * H) & (np.abs(x) < 0.08 * H) & (np.abs(y) < 0.08 * H)
-    if sel.sum() < 10:
-        return None
-    lo, hi = np.quantile(x[sel], [0.1, 0.9])
-    return 0.5 * (lo + hi) * lat
+    sides = neck_sides(points, chest.end, up, lat, (0.02 * H, 0.06 * H), 0.08 * H)
+    return None if sides is None else 0.5 * (sides[0] + sides[1]) * lat
 
 
 def anchor_on_head_top(secs: dict, body: StandardBody, params: FitParams) -> dict:

@@ -401,6 +401,21 @@ NECK_REACH = 0.6
 NECK_QUANTILE = 0.1
 
 
+def neck_sides(points, top: np.ndarray, up: np.ndarray, lat: np.ndarray, heights: tuple, reach: float,
+               q: float = 0.1) -> tuple[float, float] | None:
+    """The sides of the neck across the body: the ``q`` and ``1 - q`` quantiles of the points'
+    offsets along ``lat`` (unit (3,), across the body) from ``top`` (3,, the chest's top end), over
+    the points between ``heights`` (metres, low and high) above it along ``up`` (unit (3,)) and within
+    ``reach`` metres of it across and front to back; None with fewer than 10 points there."""
+    rel = np.asarray(points, dtype=float) - top
+    h, x, y = rel @ up, rel @ lat, rel @ cross(up, lat)
+    sel = (h > heights[0]) & (h < heights[1]) & (np.abs(x) < reach) & (np.abs(y) < reach)
+    if sel.sum() < 10:
+        return None
+    lo, hi = np.quantile(x[sel], [q, 1.0 - q])
+    return float(lo), float(hi)
+
+
 def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK_REACH,
                 q: float = NECK_QUANTILE) -> dict:
     """The reported chest's top end (the neck) midway between the sides of the neck seen in the
@@ -452,13 +467,11 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     if np.linalg.norm(lat) < 1e-6:
         return secs
     lat = unit(lat)
-    rel = np.asarray(points, dtype=float) - c.end
-    h, x, y = rel @ up, rel @ lat, rel @ cross(up, lat)
     L = hd.length
-    sel = (h > slab[0] * L) & (h < slab[1] * L) & (np.abs(x) < reach * L) & (np.abs(y) < reach * L)
-    if sel.sum() < 10:
+    sides = neck_sides(points, c.end, up, lat, (slab[0] * L, slab[1] * L), reach * L, q)
+    if sides is None:
         return secs
-    lo, hi = np.quantile(x[sel], [q, 1.0 - q])
+    lo, hi = sides
     if 0.5 * (hi - lo) >= float(hd.radii.max()):
         return secs    # wider than the head: not the neck alone (arms or shoulders in the slab)
     move = 0.5 * float(lo + hi) * lat

@@ -177,6 +177,7 @@ import numpy as np
 from . import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from .cloud import check_points
+from .geometry import rotvec
 from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
 from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, shank_ratio, split_hips,
                      split_knees, split_torso, swap_sides)
@@ -240,8 +241,7 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
     sample = points[::max(1, len(points) // params.fit_max_points + 1)]
     best, first = None, None
     for i in range(int(params.fit_facing)):
-        a = 2 * np.pi * i / int(params.fit_facing)
-        R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]]) @ R0
+        R = rotvec(np.array([0.0, 0.0, 2 * np.pi * i / int(params.fit_facing)])) @ R0
         try:
             # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
             # (the volume's voxels and the searches would otherwise see different rounding)

@@ -48,11 +48,12 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
       `reach_max_core_fraction` of the hand's count: a hand is a free end, the fist of an arm held
       out is what the camera it points at sees first), counting only points off the upper arm's
       column (a forearm folded back onto it), few core and halo points, its axis half a radius
-      clear of other sections, its hand not behind the trunk near it or the thighs (``back``), and at least
-      `fit_min_points` points on the chain.
+      clear of other sections, its hand not behind the trunk near it or the thighs (``back``), and
+      at least `fit_min_points` points on the chain.
     - a chain found is not taken when, with every found arm in place, more than
-      `reach_max_shared_fraction` of the points either section is nearest to lie within `fit_coverage_distance` of another section's surface:
-      a limb explains points no other section explains (arm_across turned 90 degrees without its
+      `reach_max_shared_fraction` of the points either section is nearest to lie within
+      `fit_coverage_distance` of another section's surface: a limb explains points no other
+      section explains (arm_across turned 90 degrees without its
       left forearm: a "forearm" found on 44 points, 77 % of them on the other forearm, the upper arm
       and the chest, wrist 49 cm off; found arms of arms_forward: at most 12 %).
 
