@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import unit
 from .model import ADJACENT, SECTIONS, BodyFit, section_coords
 from .params import ClusterParams
 
@@ -496,10 +497,21 @@ def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
     return normal / np.linalg.norm(normal)
 
 
+#: The side joints where a thigh leaves the waist.
+_HIPS = ("hip_l", "hip_r")
+
+
+def hip_plane_of(params: ClusterParams) -> tuple | None:
+    """(tilt, offset) of the hips' planes from ``params`` (``hip_plane_tilt``,
+    ``hip_plane_offset``), or None without ``params.hip_planes``."""
+    return (params.hip_plane_tilt, params.hip_plane_offset) if params.hip_planes else None
+
+
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
                       overlap_middle: bool = True, bones: bool = False,
-                      side_tilt: float = 0.0) -> np.ndarray:
+                      side_tilt: float = 0.0, hip_plane: tuple | None = None,
+                      crotch: np.ndarray | None = None) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -563,6 +575,14 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
         away = D.axis if at_start else -D.axis
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
+            if hip_plane is not None and joint in _HIPS:
+                # the groin's crease: the mitre of the waist's axis and the thigh's, tilted out
+                toward = P.axis if along > P.length / 2 else -P.axis
+                normal = _tilt_to_midline(fit, joint, j, unit(toward + away), hip_plane[0])
+                origin = (np.asarray(crotch, dtype=float) if crotch is not None
+                          else j + hip_plane[1] * D.width * normal)
+                out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
+                continue
             if not (side_planes and 0.0 <= along <= P.length):
                 continue  # a side joint beyond P's end (hips): no plane
             # beside P's column (shoulders): D's cross-section through the joint, tilted
@@ -594,7 +614,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0):
+                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0,
+                   hip_plane=None, crotch=None):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -669,7 +690,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
                                                            mitre_band, side_planes, overlap_middle,
-                                                           bones, side_tilt)
+                                                           bones, side_tilt, hip_plane, crotch)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -690,7 +711,8 @@ for (_p, _d) in ADJACENT:
 
 def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
                         fit: BodyFit, reach: float = 0.5,
-                        params: ClusterParams = ClusterParams()) -> np.ndarray:
+                        params: ClusterParams = ClusterParams(),
+                        crotch: np.ndarray | None = None) -> np.ndarray:
     """Points claimed by one section alone but lying in the adjacent one go to it (paper silent).
 
     The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
@@ -740,10 +762,51 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                                          np.full(len(cand), idd), fit, reach, params.mitre_band,
                                          params.side_joint_planes,
                                          params.joint_plane_overlap_middle,
-                                         params.joint_plane_bones, params.side_plane_tilt)
+                                         params.joint_plane_bones, params.side_plane_tilt,
+                                         hip_plane_of(params), crotch)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True
+    return out
+
+
+def claim_hips(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray, fit: BodyFit,
+               params: ClusterParams = ClusterParams(), crotch: np.ndarray | None = None) -> np.ndarray:
+    """Points left in the waist alone but past a hip's plane, near the thigh, go to the thigh
+    (paper silent; ``params.hip_claim`` > 0 with ``params.hip_planes``).
+
+    The thigh's column is fitted on the thigh's points, and at the hip it wanders front to back
+    (on a walker's forward leg 6 cm in front of the rig's): its T_d shell then misses the back
+    of the thigh below the buttock's crease, which only the waist's cap claims. A point claimed by
+    the waist alone, within ``hip_claim`` thigh widths of the thigh's surface (within its axial
+    extent, from half a width above its start), and more than ``hip_plane_offset`` thigh widths
+    past the hip's plane (`joint_plane_score`: the scatter of that plane on the fits, 2.3 cm
+    from the fitted joint, 1.1 cm from the crotch) goes to the thigh. Applied after the other
+    rules, so that the joint rule's fronts do not start from these points.
+
+    Returns a copy of ``member`` (n, 11).
+    """
+    out = member.copy()
+    if not (params.hip_planes and params.hip_claim > 0 and "waist" in fit.sections):
+        return out
+    # the buttock's crease: the thigh's column, fitted on the thigh, wanders front to back
+    # at the hip, and its T_d shell misses the back of the thigh beside the waist's cap
+    iw = SECTIONS.index("waist")
+    for thigh in ("thigh_l", "thigh_r"):
+        if thigh not in fit.sections:
+            continue
+        it, T = SECTIONS.index(thigh), fit.sections[thigh]
+        with np.errstate(invalid="ignore"):
+            cand = np.flatnonzero((out.sum(axis=1) == 1) & out[:, iw]
+                                  & (r[:, it] < params.hip_claim * T.width)
+                                  & (h[:, it] > -0.5 * T.width) & (h[:, it] < T.length))
+        if len(cand) == 0:
+            continue
+        s = joint_plane_score(points[cand], np.full(len(cand), iw), np.full(len(cand), it), fit,
+                              1.0, hip_plane=hip_plane_of(params), crotch=crotch)
+        go = cand[s > params.hip_plane_offset]
+        out[go, iw] = False
+        out[go, it] = True
     return out
 
 
@@ -776,13 +839,18 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
+    crotch = None
+    if params.hip_planes:
+        from .joints import find_crotch
+        crotch = find_crotch(points, fit.sections)
     if params.claim_across_joints > 0:
-        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params)
+        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params,
+                                     crotch)
     out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
                         keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)
     if len(rows) == 0:
-        return out
+        return claim_hips(out, points, r, h, fit, params, crotch)
     A, B = _pairs(out, rows)
     at = at_joint_mask(points[rows], A, B, h[rows], fit, params.joint_reach)
     if (~at).any():
@@ -795,8 +863,9 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
                        overlap_middle=params.joint_plane_overlap_middle,
-                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt)
-    return out
+                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt,
+                       hip_plane=hip_plane_of(params), crotch=crotch)
+    return claim_hips(out, points, r, h, fit, params, crotch)
 
 
 def primary_section(member: np.ndarray, r: np.ndarray, widths: np.ndarray) -> np.ndarray:

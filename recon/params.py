@@ -185,6 +185,10 @@ class ClusterParams:
     claim_across_joints: float = 0.5  # paper silent (chosen: see above), widths
     joint_plane_bones: bool = True   # paper silent (chosen: see above)
     side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
+    hip_planes: bool = True          # paper silent (chosen: see above)
+    hip_plane_tilt: float = 0.55     # measured on the labels (see above), tangent of the tilt
+    hip_plane_offset: float = 0.15   # measured on the labels (see above), thigh widths
+    hip_claim: float = 0.5           # paper silent (chosen: see above), thigh widths
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
 
