@@ -15,7 +15,8 @@ The steps, each usable alone:
    joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
-   shoulder).
+   shoulder, the groin's crease at the hips); points left in the waist alone past a hip's plane,
+   near the thigh, go to the thigh (`claim_hips`).
 
 ``python -m benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
 and which of these rules decided them.
@@ -532,7 +533,18 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     axis. With ``side_planes``, where the joint lies beside P's column (within its length: the
     shoulders), the plane is D's cross-section through the joint, the limb's centre of rotation
     (a hanging arm: its inner side below the joint is arm, the chest beside the joint is
-    chest); where it lies beyond P's end (the hips, below the waist's column) the score is 0.
+    chest); where it lies beyond P's end the score is 0. At the hips, with ``hip_plane`` =
+    (tilt, offset), the plane is the groin's crease (paper silent): the mitre of the waist's axis
+    toward the hip and the thigh's axis, tilted out by ``tilt`` (`_tilt_to_midline`: it rises
+    from the crotch to the hip's side), through ``crotch`` (the crotch seen in the points,
+    `recon.joints.find_crotch`) or, where none is found (hips flexed), ``offset`` thigh widths past
+    the hip joint along its normal. Measured on the labels with the oracle posture (a plane
+    fitted to the waist and thigh labels within 16 cm of each hip, 42 hips of the 21 shipped
+    bodies): its normal 0.82-0.91 along the mitre with 0.40-0.56 outward (tan 29 degrees), upright
+    and flexed 90 degrees alike; 2.5 cm (sd 0.4) past the rig's joint, 0.6 cm (sd 1.0) past the
+    crotch. Before, a flexed hip whose joint lay within the waist's length got the shoulders'
+    plane, the thigh's cross-section through the joint, which gave the lower belly above a
+    squatting thigh to the thigh.
 
     Parameters
     ----------
@@ -546,6 +558,10 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Widths of D: the mitre only where the joint is within this of D's end (default: always).
     side_planes : bool
         Planes at the side joints beside P's column (default: none at side joints).
+    hip_plane : (2,) float, optional
+        (tilt, offset in thigh widths) of the hips' planes (default: as the other side joints).
+    crotch : (3,) float, optional
+        The crotch seen in the points, metres: the hips' planes pass through it.
     overlap_middle : bool
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
     bones : bool
@@ -724,8 +740,8 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
     claimed by one section S alone, lying inside the column of a section T adjacent to S
     (``r_T < 0``, within T's axial extent) and on T's side of their joint plane
     (`joint_plane_score`, within ``reach`` widths of the distal section) goes to T instead. Side
-    joints without a plane (the hips) and points beyond the distal column's end at the shoulders
-    (score 0) are left alone.
+    joints without a plane (the hips without ``params.hip_planes``) and points beyond the distal
+    column's end at the shoulders (score 0) are left alone.
 
     Parameters
     ----------
@@ -738,7 +754,9 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
         Widths of the distal section: how far from the joint plane a point may lie.
     params : ClusterParams
         For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
-        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``).
+        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``, ``hip_planes``).
+    crotch : (3,) float, optional
+        The crotch seen in the points (for the hips' planes).
 
     Returns
     -------
@@ -815,7 +833,10 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
 
     First (paper silent), points claimed by one section alone across a joint go to the adjacent
-    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0).
+    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0); last,
+    points left in the waist alone past a hip's plane, near the thigh, go to it (`claim_hips`).
+    With ``params.hip_planes``, the crotch is sought in the points (`recon.joints.find_crotch`)
+    for the hips' planes.
 
     Parameters
     ----------

@@ -156,6 +156,36 @@ class ClusterParams:
         0.9517 (chosen 0.5: the same gain, a bounded neighbourhood of the joint). Moving the points
         after the joint rule instead of before it (their fronts unchanged) gained less: 0.9655 /
         0.9514. Only at the neck: 0.9652 / 0.9510; only at the knees: 0.9627 / 0.9509.
+    hip_planes : bool
+        The joint rule's plane at the hips is the groin's crease (paper silent; see
+        `recon.cluster.joint_plane_score`): the mitre of the waist's and the thigh's axes tilted
+        out by ``hip_plane_tilt``, through the crotch seen in the points, or, with the hips flexed
+        (no crotch found), ``hip_plane_offset`` thigh widths past the hip joint. False: the hips
+        keep no plane, except a joint within the waist's length (a flexed hip), which gets the
+        shoulders' plane (the thigh's cross-section). Measured (21 shipped postures, `paper` scans,
+        the clustering alone on the same fits; mean truth among labels, oracle / estimated
+        posture): False 0.9710 / 0.9629 (squat 0.9451, tall_walking 0.9465), True 0.9728 / 0.9647
+        (squat 0.9541, seated 0.9639 -> 0.9673, knee_raised 0.9651 -> 0.9700, heavy_standing
+        0.9524 -> 0.9576; the largest loss heavy_a_pose 0.9580 -> 0.9565); through the hip joint
+        plus the offset at every hip instead of the crotch: 0.9602 estimated (child_arms_raised
+        0.9533, tall_walking 0.9391: the fitted joints scatter 2.3 cm along the normal, the crotch
+        1.1 cm). Without the tilt (the mitre alone): squat 0.9498, walking 0.9624.
+    hip_plane_tilt : float
+        Outward tilt of the hips' planes (the tangent; measured, not swept: the labels' plane
+        normal has 0.40-0.56 outward for 0.82-0.91 along the mitre on all 42 hips, oracle posture).
+    hip_plane_offset : float
+        Thigh widths past the hip joint along the plane's normal where no crotch is found
+        (measured: 2.5 cm, sd 0.4, on the oracle's 42 hips, 0.148 widths of a 17 cm thigh); also the
+        margin of `recon.cluster.claim_hips` past the plane.
+    hip_claim : float
+        `recon.cluster.claim_hips`: points left in the waist alone within this many thigh widths
+        of a thigh's surface and more than ``hip_plane_offset`` widths past its hip's plane go to
+        the thigh (paper silent; 0: off). Chosen: half a width, the thigh's radius (estimated
+        posture, same fits: 0.4 -> tall_walking 0.9508, 0.5 and 0.6 -> 0.9519, mean 0.9647 ->
+        0.9649, arms_raised and t_pose -0.1 %, woman_a_pose +0.25 %). As a step before the joint
+        rule instead of after it, the moved points started the thigh's front: t_pose, standing,
+        arms_forward and arms_raised lost 0.2 %. With no margin past the plane (any point on the
+        thigh's side) the mean fell to 0.9614.
     max_rounds : int
         Rounds of the three-or-more rule, of the two-section rule and of label adoption before
         the remaining points are settled by their distance to the model (paper silent; the joint
@@ -186,8 +216,8 @@ class ClusterParams:
     joint_plane_bones: bool = True   # paper silent (chosen: see above)
     side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
     hip_planes: bool = True          # paper silent (chosen: see above)
-    hip_plane_tilt: float = 0.55     # measured on the labels (see above), tangent of the tilt
-    hip_plane_offset: float = 0.15   # measured on the labels (see above), thigh widths
+    hip_plane_tilt: float = 0.55     # paper silent (chosen: measured on the labels, see above)
+    hip_plane_offset: float = 0.15   # paper silent (chosen: measured on the labels), thigh widths
     hip_claim: float = 0.5           # paper silent (chosen: see above), thigh widths
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
@@ -209,6 +239,9 @@ class ClusterParams:
         _check(self.claim_across_joints >= 0, "claim_across_joints", self.claim_across_joints,
                ">= 0 widths")
         _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")
+        _check(self.hip_plane_tilt >= 0, "hip_plane_tilt", self.hip_plane_tilt, ">= 0")
+        _check(self.hip_plane_offset >= 0, "hip_plane_offset", self.hip_plane_offset, ">= 0 widths")
+        _check(self.hip_claim >= 0, "hip_claim", self.hip_claim, ">= 0 widths")
 
 
 @dataclass(frozen=True)
