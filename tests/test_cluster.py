@@ -310,3 +310,52 @@ def test_shoulder_plane_tilts_toward_the_midline():
     q = shoulder + np.array([[0.02, 0, 0.03], [0.02, 0, -0.03]])
     assert np.allclose(C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True, side_tilt=1.0),
                        C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True))
+
+
+def squatting_hip():
+    """A waist and a left thigh held forward (the hip flexed 90 degrees), the hip joint beside the
+    waist's column within its length (as the fits place a squat's)."""
+    hip = np.array([0.1, 0, 0.47])
+    waist = SectionShape("waist", [0, 0, 0.45], [0, 0, 0.70], [0.15, 0.11], X)
+    thigh = SectionShape("thigh_l", hip + [0, -0.03, 0], hip + [0, -0.43, 0], [0.085, 0.085], X)
+    fit = BodyFit(sections={"waist": waist, "thigh_l": thigh},
+                  joints={"hip_l": hip, "hip_r": hip * [-1, 1, 1], "pelvis": np.array([0, 0, 0.45])})
+    return hip, waist, thigh, fit
+
+
+def test_hip_plane_is_the_groins_crease_tilted_out():
+    """A flexed hip: the plane is the mitre of the waist's downward axis and the thigh's, tilted
+    out, ``offset`` thigh widths past the joint (or through the crotch); the lower belly above the
+    thigh's start scores for the waist, the thigh's top further along for the thigh. The
+    shoulders' plane (the thigh's cross-section through the joint) gave the belly to the thigh."""
+    hip, waist, thigh, fit = squatting_hip()
+    pts = hip + np.array([[0, -0.10, 0.10], [0, -0.15, 0.085]])        # belly, top of the thigh
+    w, t = np.full(2, I["waist"]), np.full(2, I["thigh_l"])
+    old = C.joint_plane_score(pts, w, t, fit, 0.3, side_planes=True, side_tilt=1.0)
+    assert old[0] > 0                                   # the belly went to the thigh
+    score = C.joint_plane_score(pts, w, t, fit, 0.3, side_planes=True, side_tilt=1.0,
+                                hip_plane=(0.55, 0.15))
+    n = np.array([0.55, -1 / np.sqrt(2), -1 / np.sqrt(2)])
+    n = n / np.linalg.norm(n)                           # down + forward, tilted out (+x)
+    origin = hip + 0.15 * thigh.width * n
+    assert np.allclose(score, np.clip((pts - origin) @ n / (0.3 * thigh.width), -1, 1))
+    assert score[0] < 0 < score[1]
+    crotch = np.array([0, -0.05, 0.40])
+    through = C.joint_plane_score(pts, w, t, fit, 0.3, hip_plane=(0.55, 0.15), crotch=crotch)
+    assert np.allclose(through, np.clip((pts - crotch) @ n / (0.3 * thigh.width), -1, 1))
+
+
+def test_waist_points_past_the_hip_plane_near_the_thigh_go_to_it():
+    """Points left in the waist alone: below the thigh's start, on its side of the hip's plane and
+    near its surface -> thigh; the belly above (the waist's side) and a point far below the thigh's
+    surface stay in the waist; with ``hip_claim`` 0 nothing moves."""
+    hip, waist, thigh, fit = squatting_hip()
+    pts = hip + np.array([[0, -0.06, -0.09], [0, -0.10, 0.10], [0, -0.06, -0.25]])
+    member = np.zeros((3, 11), bool)
+    member[:, I["waist"]] = True
+    r, _, h = C.section_coordinates(pts, fit)
+    out = C.claim_hips(member, pts, r, h, fit, ClusterParams())
+    assert out[:, I["thigh_l"]].tolist() == [True, False, False]
+    assert out[:, I["waist"]].tolist() == [False, True, True]
+    off = C.claim_hips(member, pts, r, h, fit, ClusterParams(hip_claim=0))
+    assert (off == member).all()
