@@ -15,8 +15,7 @@ The steps, each usable alone:
    joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
-   shoulder, the groin's crease at the hips); points left in the waist alone past a hip's plane,
-   near the thigh, go to the thigh (`claim_hips`).
+   shoulder, the groin's crease at flexed hips).
 
 ``python -m benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
 and which of these rules decided them.
@@ -502,17 +501,32 @@ def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
 _HIPS = ("hip_l", "hip_r")
 
 
-def hip_plane_of(params: ClusterParams) -> tuple | None:
-    """(tilt, offset) of the hips' planes from ``params`` (``hip_plane_tilt``,
-    ``hip_plane_offset``), or None without ``params.hip_planes``."""
-    return (params.hip_plane_tilt, params.hip_plane_offset) if params.hip_planes else None
+def flexed_hip_plane(points: np.ndarray, fit: BodyFit, params: ClusterParams) -> tuple | None:
+    """(tilt, offset) of the hips' planes (``params.hip_plane_tilt``, ``params.hip_plane_offset``)
+    when the hips are flexed, else None (without ``params.hip_planes`` too).
+
+    The hips count as flexed when no crotch is found along the thighs (`recon.joints.find_crotch`:
+    a thigh more than 45 degrees from the waist's downward axis, or no points between the legs).
+    With the legs down, the crotch was found and the reported thighs start from it
+    (`recon.joints.split_hips`); the joint rule's fronts then place the seam, and a plane would
+    have to be anchored on the crotch seen in the points, which steeper lasers see less (found
+    0.4-1.8 cm above the body file's at k = 1, 1.4-3.0 at k = 2, 2.6-5.4 cm at k = 3; through it,
+    the upright postures lost up to 0.6 % at k = 3) or on the fitted hip joint, which scatters 2.3 cm
+    along the plane's normal (child_arms_raised 0.961 -> 0.953).
+    """
+    if not params.hip_planes:
+        return None
+    from .joints import find_crotch
+
+    if find_crotch(points, fit.sections) is not None:
+        return None
+    return (params.hip_plane_tilt, params.hip_plane_offset)
 
 
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
                       overlap_middle: bool = True, bones: bool = False,
-                      side_tilt: float = 0.0, hip_plane: tuple | None = None,
-                      crotch: np.ndarray | None = None) -> np.ndarray:
+                      side_tilt: float = 0.0, hip_plane: tuple | None = None) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -536,9 +550,9 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     chest); where it lies beyond P's end the score is 0. At the hips, with ``hip_plane`` =
     (tilt, offset), the plane is the groin's crease (paper silent): the mitre of the waist's axis
     toward the hip and the thigh's axis, tilted out by ``tilt`` (`_tilt_to_midline`: it rises
-    from the crotch to the hip's side), through ``crotch`` (the crotch seen in the points,
-    `recon.joints.find_crotch`) or, where none is found (hips flexed), ``offset`` thigh widths past
-    the hip joint along its normal. Measured on the labels with the oracle posture (a plane
+    from the crotch to the hip's side), ``offset`` thigh widths past the hip joint along its
+    normal (`flexed_hip_plane` gives it only with the hips flexed). Measured on the labels with
+    the oracle posture (a plane
     fitted to the waist and thigh labels within 16 cm of each hip, 42 hips of the 21 shipped
     bodies): its normal 0.82-0.91 along the mitre with 0.40-0.56 outward (tan 29 degrees), upright
     and flexed 90 degrees alike; 2.5 cm (sd 0.4) past the rig's joint, 0.6 cm (sd 1.0) past the
@@ -560,8 +574,6 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Planes at the side joints beside P's column (default: none at side joints).
     hip_plane : (2,) float, optional
         (tilt, offset in thigh widths) of the hips' planes (default: as the other side joints).
-    crotch : (3,) float, optional
-        The crotch seen in the points, metres: the hips' planes pass through it.
     overlap_middle : bool
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
     bones : bool
@@ -595,8 +607,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
                 # the groin's crease: the mitre of the waist's axis and the thigh's, tilted out
                 toward = P.axis if along > P.length / 2 else -P.axis
                 normal = _tilt_to_midline(fit, joint, j, unit(toward + away), hip_plane[0])
-                origin = (np.asarray(crotch, dtype=float) if crotch is not None
-                          else j + hip_plane[1] * D.width * normal)
+                origin = j + hip_plane[1] * D.width * normal
                 out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
                 continue
             if not (side_planes and 0.0 <= along <= P.length):
@@ -631,7 +642,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
                    side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0,
-                   hip_plane=None, crotch=None):
+                   hip_plane=None):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -706,7 +717,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
                                                            mitre_band, side_planes, overlap_middle,
-                                                           bones, side_tilt, hip_plane, crotch)
+                                                           bones, side_tilt, hip_plane)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -728,7 +739,7 @@ for (_p, _d) in ADJACENT:
 def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
                         fit: BodyFit, reach: float = 0.5,
                         params: ClusterParams = ClusterParams(),
-                        crotch: np.ndarray | None = None) -> np.ndarray:
+                        hip_plane: tuple | None = None) -> np.ndarray:
     """Points claimed by one section alone but lying in the adjacent one go to it (paper silent).
 
     The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
@@ -755,8 +766,8 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
     params : ClusterParams
         For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
         ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``, ``hip_planes``).
-    crotch : (3,) float, optional
-        The crotch seen in the points (for the hips' planes).
+    hip_plane : (2,) float, optional
+        The hips' planes (`joint_plane_score`; from `flexed_hip_plane`).
 
     Returns
     -------
@@ -781,50 +792,10 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                                          params.side_joint_planes,
                                          params.joint_plane_overlap_middle,
                                          params.joint_plane_bones, params.side_plane_tilt,
-                                         hip_plane_of(params), crotch)
+                                         hip_plane)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True
-    return out
-
-
-def claim_hips(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray, fit: BodyFit,
-               params: ClusterParams = ClusterParams(), crotch: np.ndarray | None = None) -> np.ndarray:
-    """Points left in the waist alone but past a hip's plane, near the thigh, go to the thigh
-    (paper silent; ``params.hip_claim`` > 0 with ``params.hip_planes``).
-
-    The thigh's column is fitted on the thigh's points, and at the hip it wanders front to back
-    (on a walker's forward leg 6 cm in front of the rig's): its T_d shell then misses the back
-    of the thigh below the buttock's crease, which only the waist's cap claims. A point claimed by
-    the waist alone, within ``hip_claim`` thigh widths of the thigh's surface (within its axial
-    extent, from half a width above its start), and more than ``hip_plane_offset`` thigh widths
-    past the hip's plane (`joint_plane_score`: the scatter of that plane on the fits, 2.3 cm
-    from the fitted joint, 1.1 cm from the crotch) goes to the thigh. Applied after the other
-    rules, so that the joint rule's fronts do not start from these points.
-
-    Returns a copy of ``member`` (n, 11).
-    """
-    out = member.copy()
-    if not (params.hip_planes and params.hip_claim > 0 and "waist" in fit.sections):
-        return out
-    # the buttock's crease: the thigh's column, fitted on the thigh, wanders front to back
-    # at the hip, and its T_d shell misses the back of the thigh beside the waist's cap
-    iw = SECTIONS.index("waist")
-    for thigh in ("thigh_l", "thigh_r"):
-        if thigh not in fit.sections:
-            continue
-        it, T = SECTIONS.index(thigh), fit.sections[thigh]
-        with np.errstate(invalid="ignore"):
-            cand = np.flatnonzero((out.sum(axis=1) == 1) & out[:, iw]
-                                  & (r[:, it] < params.hip_claim * T.width)
-                                  & (h[:, it] > -0.5 * T.width) & (h[:, it] < T.length))
-        if len(cand) == 0:
-            continue
-        s = joint_plane_score(points[cand], np.full(len(cand), iw), np.full(len(cand), it), fit,
-                              1.0, hip_plane=hip_plane_of(params), crotch=crotch)
-        go = cand[s > params.hip_plane_offset]
-        out[go, iw] = False
-        out[go, it] = True
     return out
 
 
@@ -833,10 +804,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
 
     First (paper silent), points claimed by one section alone across a joint go to the adjacent
-    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0); last,
-    points left in the waist alone past a hip's plane, near the thigh, go to it (`claim_hips`).
-    With ``params.hip_planes``, the crotch is sought in the points (`recon.joints.find_crotch`)
-    for the hips' planes.
+    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0). With the
+    hips flexed, both rules weigh the hips' planes (`flexed_hip_plane`, ``params.hip_planes``).
 
     Parameters
     ----------
@@ -860,18 +829,15 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
-    crotch = None
-    if params.hip_planes:
-        from .joints import find_crotch
-        crotch = find_crotch(points, fit.sections)
+    hip_plane = flexed_hip_plane(points, fit, params)
     if params.claim_across_joints > 0:
         member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params,
-                                     crotch)
+                                     hip_plane)
     out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
                         keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)
     if len(rows) == 0:
-        return claim_hips(out, points, r, h, fit, params, crotch)
+        return out
     A, B = _pairs(out, rows)
     at = at_joint_mask(points[rows], A, B, h[rows], fit, params.joint_reach)
     if (~at).any():
@@ -885,8 +851,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
                        overlap_middle=params.joint_plane_overlap_middle,
                        bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt,
-                       hip_plane=hip_plane_of(params), crotch=crotch)
-    return claim_hips(out, points, r, h, fit, params, crotch)
+                       hip_plane=hip_plane)
+    return out
 
 
 def primary_section(member: np.ndarray, r: np.ndarray, widths: np.ndarray) -> np.ndarray:

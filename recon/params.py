@@ -157,35 +157,31 @@ class ClusterParams:
         after the joint rule instead of before it (their fronts unchanged) gained less: 0.9655 /
         0.9514. Only at the neck: 0.9652 / 0.9510; only at the knees: 0.9627 / 0.9509.
     hip_planes : bool
-        The joint rule's plane at the hips is the groin's crease (paper silent; see
-        `recon.cluster.joint_plane_score`): the mitre of the waist's and the thigh's axes tilted
-        out by ``hip_plane_tilt``, through the crotch seen in the points, or, with the hips flexed
-        (no crotch found), ``hip_plane_offset`` thigh widths past the hip joint. False: the hips
-        keep no plane, except a joint within the waist's length (a flexed hip), which gets the
-        shoulders' plane (the thigh's cross-section). Measured (21 shipped postures, `paper` scans,
-        the clustering alone on the same fits; mean truth among labels, oracle / estimated
-        posture): False 0.9710 / 0.9629 (squat 0.9451, tall_walking 0.9465), True 0.9728 / 0.9647
-        (squat 0.9541, seated 0.9639 -> 0.9673, knee_raised 0.9651 -> 0.9700, heavy_standing
-        0.9524 -> 0.9576; the largest loss heavy_a_pose 0.9580 -> 0.9565); through the hip joint
-        plus the offset at every hip instead of the crotch: 0.9602 estimated (child_arms_raised
-        0.9533, tall_walking 0.9391: the fitted joints scatter 2.3 cm along the normal, the crotch
-        1.1 cm). Without the tilt (the mitre alone): squat 0.9498, walking 0.9624.
+        With the hips flexed (no crotch found along the thighs, `recon.joints.find_crotch`), the
+        joint rule's plane at the hips is the groin's crease (paper silent; see
+        `recon.cluster.joint_plane_score` and `recon.cluster.flexed_hip_plane`): the mitre of the
+        waist's downward axis and the thigh's axis, tilted out by ``hip_plane_tilt``,
+        ``hip_plane_offset`` thigh widths past the hip joint. Before (False), a flexed hip whose
+        joint lay within the waist's length got the shoulders' plane, the thigh's cross-section
+        through the joint, which gave the lower belly above a squatting thigh to the thigh; upright
+        hips keep no plane either way. Measured (21 shipped postures, `paper` scans at k = 1, 2, 3,
+        the clustering alone on the same estimated fits; mean truth among labels): False 0.9629 /
+        0.9628 / 0.9520 (k = 1 / 2 / 3), True 0.9637 / 0.9634 / 0.9525; only the three flexed
+        postures change, at every k for the better: squat 0.9451 / 0.9637 / 0.8470 -> 0.9541 /
+        0.9637 / 0.8526, seated 0.9639 / 0.9658 / 0.9608 -> 0.9673 / 0.9714 / 0.9624, knee_raised
+        0.9651 / 0.9679 / 0.9701 -> 0.9700 / 0.9756 / 0.9732; oracle posture (k = 1) 0.9710 ->
+        0.9719 (seated 0.9503 -> 0.9592, squat 0.9624 -> 0.9679). Also at upright hips, through the crotch seen in
+        the points: k = 1 0.9647, but k = 3 0.9504 (the crotch is found 2.6-5.4 cm high there:
+        standing 0.9686 -> 0.9643); through the fitted hip joint: k = 1 child_arms_raised 0.9614 ->
+        0.9533, tall_walking 0.9465 -> 0.9391.
     hip_plane_tilt : float
-        Outward tilt of the hips' planes (the tangent; measured, not swept: the labels' plane
-        normal has 0.40-0.56 outward for 0.82-0.91 along the mitre on all 42 hips, oracle posture).
+        Outward tilt of the hips' planes, the tangent (measured, not swept: a plane fitted to the
+        waist and thigh labels within 16 cm of each hip, oracle posture, all 42 hips of the
+        shipped bodies, upright and flexed alike: its normal 0.82-0.91 along the mitre and
+        0.40-0.56 outward).
     hip_plane_offset : float
-        Thigh widths past the hip joint along the plane's normal where no crotch is found
-        (measured: 2.5 cm, sd 0.4, on the oracle's 42 hips, 0.148 widths of a 17 cm thigh); also the
-        margin of `recon.cluster.claim_hips` past the plane.
-    hip_claim : float
-        `recon.cluster.claim_hips`: points left in the waist alone within this many thigh widths
-        of a thigh's surface and more than ``hip_plane_offset`` widths past its hip's plane go to
-        the thigh (paper silent; 0: off). Chosen: half a width, the thigh's radius (estimated
-        posture, same fits: 0.4 -> tall_walking 0.9508, 0.5 and 0.6 -> 0.9519, mean 0.9647 ->
-        0.9649, arms_raised and t_pose -0.1 %, woman_a_pose +0.25 %). As a step before the joint
-        rule instead of after it, the moved points started the thigh's front: t_pose, standing,
-        arms_forward and arms_raised lost 0.2 %. With no margin past the plane (any point on the
-        thigh's side) the mean fell to 0.9614.
+        Thigh widths past the hip joint along the plane's normal (measured as the tilt: 2.5 cm,
+        sd 0.4, 0.148 widths of a 17 cm thigh).
     max_rounds : int
         Rounds of the three-or-more rule, of the two-section rule and of label adoption before
         the remaining points are settled by their distance to the model (paper silent; the joint
@@ -215,10 +211,9 @@ class ClusterParams:
     claim_across_joints: float = 0.5  # paper silent (chosen: see above), widths
     joint_plane_bones: bool = True   # paper silent (chosen: see above)
     side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
-    hip_planes: bool = True          # paper silent (chosen: see above)
+    hip_planes: bool = True          # paper silent (chosen: see above), flexed hips only
     hip_plane_tilt: float = 0.55     # paper silent (chosen: measured on the labels, see above)
     hip_plane_offset: float = 0.15   # paper silent (chosen: measured on the labels), thigh widths
-    hip_claim: float = 0.5           # paper silent (chosen: see above), thigh widths
     max_rounds: int = 20            # paper silent
     adopt_unlabeled: bool = True    # paper silent
 
@@ -241,7 +236,6 @@ class ClusterParams:
         _check(self.seam_width > 0, "seam_width", self.seam_width, "> 0 spacings")
         _check(self.hip_plane_tilt >= 0, "hip_plane_tilt", self.hip_plane_tilt, ">= 0")
         _check(self.hip_plane_offset >= 0, "hip_plane_offset", self.hip_plane_offset, ">= 0 widths")
-        _check(self.hip_claim >= 0, "hip_claim", self.hip_claim, ">= 0 widths")
 
 
 @dataclass(frozen=True)

@@ -325,9 +325,10 @@ def squatting_hip():
 
 def test_hip_plane_is_the_groins_crease_tilted_out():
     """A flexed hip: the plane is the mitre of the waist's downward axis and the thigh's, tilted
-    out, ``offset`` thigh widths past the joint (or through the crotch); the lower belly above the
-    thigh's start scores for the waist, the thigh's top further along for the thigh. The
-    shoulders' plane (the thigh's cross-section through the joint) gave the belly to the thigh."""
+    out, ``offset`` thigh widths past the joint; the lower belly above the thigh's start scores
+    for the waist, the thigh's top further along for the thigh. The shoulders' plane (the thigh's
+    cross-section through the joint) gave the belly to the thigh. `flexed_hip_plane` gives the
+    plane here (no crotch along the thighs), not with the legs down."""
     hip, waist, thigh, fit = squatting_hip()
     pts = hip + np.array([[0, -0.10, 0.10], [0, -0.15, 0.085]])        # belly, top of the thigh
     w, t = np.full(2, I["waist"]), np.full(2, I["thigh_l"])
@@ -340,22 +341,14 @@ def test_hip_plane_is_the_groins_crease_tilted_out():
     origin = hip + 0.15 * thigh.width * n
     assert np.allclose(score, np.clip((pts - origin) @ n / (0.3 * thigh.width), -1, 1))
     assert score[0] < 0 < score[1]
-    crotch = np.array([0, -0.05, 0.40])
-    through = C.joint_plane_score(pts, w, t, fit, 0.3, hip_plane=(0.55, 0.15), crotch=crotch)
-    assert np.allclose(through, np.clip((pts - crotch) @ n / (0.3 * thigh.width), -1, 1))
+    cloud = np.concatenate([column_points(waist), column_points(thigh)])
+    assert C.flexed_hip_plane(cloud, fit, ClusterParams()) == (0.55, 0.15)
+    assert C.flexed_hip_plane(cloud, fit, ClusterParams(hip_planes=False)) is None
+    down = SectionShape("thigh_l", hip + [0, 0, -0.03], hip + [0, 0, -0.43], [0.07, 0.07], X)
+    right = SectionShape("thigh_r", down.start * [-1, 1, 1], down.end * [-1, 1, 1], [0.07, 0.07], X)
+    legs = {"waist": waist, "thigh_l": down, "thigh_r": right}
+    standing = BodyFit(sections=legs, joints=fit.joints)
+    crotch = np.array([[0, 0, 0.38], [0.005, 0.01, 0.385]])           # points between the legs
+    cloud = np.concatenate([column_points(waist), column_points(down), column_points(right), crotch])
+    assert C.flexed_hip_plane(cloud, standing, ClusterParams()) is None
 
-
-def test_waist_points_past_the_hip_plane_near_the_thigh_go_to_it():
-    """Points left in the waist alone: below the thigh's start, on its side of the hip's plane and
-    near its surface -> thigh; the belly above (the waist's side) and a point far below the thigh's
-    surface stay in the waist; with ``hip_claim`` 0 nothing moves."""
-    hip, waist, thigh, fit = squatting_hip()
-    pts = hip + np.array([[0, -0.06, -0.09], [0, -0.10, 0.10], [0, -0.06, -0.25]])
-    member = np.zeros((3, 11), bool)
-    member[:, I["waist"]] = True
-    r, _, h = C.section_coordinates(pts, fit)
-    out = C.claim_hips(member, pts, r, h, fit, ClusterParams())
-    assert out[:, I["thigh_l"]].tolist() == [True, False, False]
-    assert out[:, I["waist"]].tolist() == [False, True, True]
-    off = C.claim_hips(member, pts, r, h, fit, ClusterParams(hip_claim=0))
-    assert (off == member).all()
