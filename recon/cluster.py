@@ -510,9 +510,9 @@ def flexed_hip_plane(points: np.ndarray, fit: BodyFit, params: ClusterParams) ->
     With the legs down, the crotch was found and the reported thighs start from it
     (`recon.joints.split_hips`); the joint rule's fronts then place the seam, and a plane would
     have to be anchored on the crotch seen in the points, which steeper lasers see less (found
-    0.4-1.8 cm above the body file's at k = 1, 1.4-3.0 at k = 2, 2.6-5.4 cm at k = 3; through it,
-    the upright postures lost up to 0.6 % at k = 3) or on the fitted hip joint, which scatters 2.3 cm
-    along the plane's normal (child_arms_raised 0.961 -> 0.953).
+    -3.0 to +1.8 cm from the body file's at k = 1, -0.4 to +3.0 at k = 2, +2.6 to +5.4 cm at
+    k = 3; through it, the upright postures lost up to 0.6 % at k = 3) or on the fitted hip
+    joint, which scatters 2.3 cm along the plane's normal (child_arms_raised 0.961 -> 0.953).
     """
     if not params.hip_planes:
         return None

@@ -170,10 +170,11 @@ class ClusterParams:
         postures change, at every k for the better: squat 0.9451 / 0.9637 / 0.8470 -> 0.9541 /
         0.9637 / 0.8526, seated 0.9639 / 0.9658 / 0.9608 -> 0.9673 / 0.9714 / 0.9624, knee_raised
         0.9651 / 0.9679 / 0.9701 -> 0.9700 / 0.9756 / 0.9732; oracle posture (k = 1) 0.9710 ->
-        0.9719 (seated 0.9503 -> 0.9592, squat 0.9624 -> 0.9679). Also at upright hips, through the crotch seen in
-        the points: k = 1 0.9647, but k = 3 0.9504 (the crotch is found 2.6-5.4 cm high there:
-        standing 0.9686 -> 0.9643); through the fitted hip joint: k = 1 child_arms_raised 0.9614 ->
-        0.9533, tall_walking 0.9465 -> 0.9391.
+        0.9719 (seated 0.9503 -> 0.9592, squat 0.9624 -> 0.9679). Also at upright hips, through
+        the crotch seen in the points: k = 1 0.9647, but k = 3 down on the upright postures (the
+        crotch is found 2.6-5.4 cm high there: standing 0.9686 -> 0.9643, a_pose 0.9688 ->
+        0.9626); through the fitted hip joint: k = 1 child_arms_raised 0.9614 -> 0.9533,
+        tall_walking 0.9465 -> 0.9391.
     hip_plane_tilt : float
         Outward tilt of the hips' planes, the tangent (measured, not swept: a plane fitted to the
         waist and thigh labels within 16 cm of each hip, oracle posture, all 42 hips of the
