@@ -319,7 +319,8 @@ def squatting_hip():
     waist = SectionShape("waist", [0, 0, 0.45], [0, 0, 0.70], [0.15, 0.11], X)
     thigh = SectionShape("thigh_l", hip + [0, -0.03, 0], hip + [0, -0.43, 0], [0.085, 0.085], X)
     fit = BodyFit(sections={"waist": waist, "thigh_l": thigh},
-                  joints={"hip_l": hip, "hip_r": hip * [-1, 1, 1], "pelvis": np.array([0, 0, 0.45])})
+                  joints={"hip_l": hip, "hip_r": hip * [-1, 1, 1],
+                          "pelvis": np.array([0, 0, 0.45])})
     return hip, waist, thigh, fit
 
 
@@ -349,6 +350,7 @@ def test_hip_plane_is_the_groins_crease_tilted_out():
     legs = {"waist": waist, "thigh_l": down, "thigh_r": right}
     standing = BodyFit(sections=legs, joints=fit.joints)
     crotch = np.array([[0, 0, 0.38], [0.005, 0.01, 0.385]])           # points between the legs
-    cloud = np.concatenate([column_points(waist), column_points(down), column_points(right), crotch])
+    cloud = np.concatenate([column_points(waist), column_points(down), column_points(right),
+                            crotch])
     assert C.flexed_hip_plane(cloud, standing, ClusterParams()) is None
 
