@@ -15,7 +15,7 @@ The steps, each usable alone:
    joint plane
    (`joint_plane_score`: the mitre of the axes at the joint, the cross-section of the section
    the body follows where the joint lies inside the other, the arm's cross-section through the
-   shoulder).
+   shoulder, the groin's crease at flexed hips).
 
 ``python -m benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
 and which of these rules decided them.
@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .geometry import unit
 from .model import ADJACENT, SECTIONS, BodyFit, section_coords
 from .params import ClusterParams
 
@@ -496,10 +497,36 @@ def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
     return normal / np.linalg.norm(normal)
 
 
+#: The side joints where a thigh leaves the waist.
+_HIPS = ("hip_l", "hip_r")
+
+
+def flexed_hip_plane(points: np.ndarray, fit: BodyFit, params: ClusterParams) -> tuple | None:
+    """(tilt, offset) of the hips' planes (``params.hip_plane_tilt``, ``params.hip_plane_offset``)
+    when the hips are flexed, else None (without ``params.hip_planes`` too).
+
+    The hips count as flexed when no crotch is found along the thighs (`recon.joints.find_crotch`:
+    a thigh more than 45 degrees from the waist's downward axis, or no points between the legs).
+    With the legs down, the crotch was found and the reported thighs start from it
+    (`recon.joints.split_hips`); the joint rule's fronts then place the seam, and a plane would
+    have to be anchored on the crotch seen in the points, which steeper lasers see less (found
+    -3.0 to +1.8 cm from the body file's at k = 1, -0.4 to +3.0 at k = 2, +2.6 to +5.4 cm at
+    k = 3; through it, the upright postures lost up to 0.6 % at k = 3) or on the fitted hip
+    joint, which scatters 2.3 cm along the plane's normal (child_arms_raised 0.961 -> 0.953).
+    """
+    if not params.hip_planes:
+        return None
+    from .joints import find_crotch
+
+    if find_crotch(points, fit.sections) is not None:
+        return None
+    return (params.hip_plane_tilt, params.hip_plane_offset)
+
+
 def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fit: BodyFit,
                       reach: float, mitre_band: float = np.inf, side_planes: bool = False,
                       overlap_middle: bool = True, bones: bool = False,
-                      side_tilt: float = 0.0) -> np.ndarray:
+                      side_tilt: float = 0.0, hip_plane: tuple | None = None) -> np.ndarray:
     """(m,) float in [-1, 1]: which side of its joint's plane each point lies on, from the model.
 
     The plane of the joint between a proximal section P and a distal one D passes through the
@@ -520,7 +547,18 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
     axis. With ``side_planes``, where the joint lies beside P's column (within its length: the
     shoulders), the plane is D's cross-section through the joint, the limb's centre of rotation
     (a hanging arm: its inner side below the joint is arm, the chest beside the joint is
-    chest); where it lies beyond P's end (the hips, below the waist's column) the score is 0.
+    chest); where it lies beyond P's end the score is 0. At the hips, with ``hip_plane`` =
+    (tilt, offset), the plane is the groin's crease (paper silent): the mitre of the waist's axis
+    toward the hip and the thigh's axis, tilted out by ``tilt`` (`_tilt_to_midline`: it rises
+    from the crotch to the hip's side), ``offset`` thigh widths past the hip joint along its
+    normal (`flexed_hip_plane` gives it only with the hips flexed). Measured on the labels with
+    the oracle posture (a plane
+    fitted to the waist and thigh labels within 16 cm of each hip, 42 hips of the 21 shipped
+    bodies): its normal 0.82-0.91 along the mitre with 0.40-0.56 outward (tan 29 degrees), upright
+    and flexed 90 degrees alike; 2.5 cm (sd 0.4) past the rig's joint, 0.6 cm (sd 1.0) past the
+    crotch. Before, a flexed hip whose joint lay within the waist's length got the shoulders'
+    plane, the thigh's cross-section through the joint, which gave the lower belly above a
+    squatting thigh to the thigh.
 
     Parameters
     ----------
@@ -534,6 +572,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Widths of D: the mitre only where the joint is within this of D's end (default: always).
     side_planes : bool
         Planes at the side joints beside P's column (default: none at side joints).
+    hip_plane : (2,) float, optional
+        (tilt, offset in thigh widths) of the hips' planes (default: as the other side joints).
     overlap_middle : bool
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
     bones : bool
@@ -563,6 +603,13 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
         away = D.axis if at_start else -D.axis
         if np.linalg.norm(j - P.start - along * P.axis) > SIDE_JOINT * float(P.radii.mean()):
+            if hip_plane is not None and joint in _HIPS:
+                # the groin's crease: the mitre of the waist's axis and the thigh's, tilted out
+                toward = P.axis if along > P.length / 2 else -P.axis
+                normal = _tilt_to_midline(fit, joint, j, unit(toward + away), hip_plane[0])
+                origin = j + hip_plane[1] * D.width * normal
+                out[sel] = np.clip((points[sel] - origin) @ normal / (reach * D.width), -1.0, 1.0)
+                continue
             if not (side_planes and 0.0 <= along <= P.length):
                 continue  # a side joint beyond P's end (hips): no plane
             # beside P's column (shoulders): D's cross-section through the joint, tilted
@@ -594,7 +641,8 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
 
 def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_width=None,
                    fit=None, plane_weight=0.0, plane_reach=0.3, mitre_band=np.inf,
-                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0):
+                   side_planes=False, overlap_middle=True, bones=False, side_tilt=0.0,
+                   hip_plane=None):
     """Joint rule for points in two adjacent sections A, B at their joint (paper 3.2), in place.
 
     The paper settles such a point from its neighbours: only in A, or in A and in both -> A
@@ -669,7 +717,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
                                                                      (f_p - f_d) / (f_p + f_d + 1e-12))))
         vote = front + plane_weight * joint_plane_score(points[rows], prox, distal, fit, plane_reach,
                                                            mitre_band, side_planes, overlap_middle,
-                                                           bones, side_tilt)
+                                                           bones, side_tilt, hip_plane)
         choice = np.where(reached, np.where(vote > 0, distal, prox), choice)
     assigned = np.where(count == 1, member.argmax(axis=1), -1)
     assigned[rows] = choice
@@ -690,7 +738,8 @@ for (_p, _d) in ADJACENT:
 
 def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.ndarray,
                         fit: BodyFit, reach: float = 0.5,
-                        params: ClusterParams = ClusterParams()) -> np.ndarray:
+                        params: ClusterParams = ClusterParams(),
+                        hip_plane: tuple | None = None) -> np.ndarray:
     """Points claimed by one section alone but lying in the adjacent one go to it (paper silent).
 
     The T_d shell of a section claims only points near its model surface, ``|r| < T_d * width``.
@@ -702,8 +751,8 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
     claimed by one section S alone, lying inside the column of a section T adjacent to S
     (``r_T < 0``, within T's axial extent) and on T's side of their joint plane
     (`joint_plane_score`, within ``reach`` widths of the distal section) goes to T instead. Side
-    joints without a plane (the hips) and points beyond the distal column's end at the shoulders
-    (score 0) are left alone.
+    joints without a plane (the hips without ``params.hip_planes``) and points beyond the distal
+    column's end at the shoulders (score 0) are left alone.
 
     Parameters
     ----------
@@ -716,7 +765,9 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
         Widths of the distal section: how far from the joint plane a point may lie.
     params : ClusterParams
         For the joint plane's settings (``mitre_band``, ``side_joint_planes``,
-        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``).
+        ``joint_plane_overlap_middle``, ``joint_plane_bones``, ``side_plane_tilt``, ``hip_planes``).
+    hip_plane : (2,) float, optional
+        The hips' planes (`joint_plane_score`; from `flexed_hip_plane`).
 
     Returns
     -------
@@ -740,7 +791,8 @@ def claim_across_joints(member: np.ndarray, points: np.ndarray, r: np.ndarray, h
                                          np.full(len(cand), idd), fit, reach, params.mitre_band,
                                          params.side_joint_planes,
                                          params.joint_plane_overlap_middle,
-                                         params.joint_plane_bones, params.side_plane_tilt)
+                                         params.joint_plane_bones, params.side_plane_tilt,
+                                         hip_plane)
             go = cand[(s > 0) & (s < 1)]
             out[go, src] = False
             out[go, dst] = True
@@ -752,7 +804,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     """Settle the points in several sections (paper 3.2): three-or-more, two-section, joint rules.
 
     First (paper silent), points claimed by one section alone across a joint go to the adjacent
-    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0).
+    section they lie in (`claim_across_joints`, with ``params.claim_across_joints`` > 0). With the
+    hips flexed, both rules weigh the hips' planes (`flexed_hip_plane`, ``params.hip_planes``).
 
     Parameters
     ----------
@@ -776,8 +829,10 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
     tree = tree if tree is not None else cKDTree(points)
     radius = radius if radius is not None else neighbor_radius(points, params, tree)
     widths = section_widths(fit)
+    hip_plane = flexed_hip_plane(points, fit, params)
     if params.claim_across_joints > 0:
-        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params)
+        member = claim_across_joints(member, points, r, h, fit, params.claim_across_joints, params,
+                                     hip_plane)
     out = reduce_to_two(member, points, r, widths, max_rounds=params.max_rounds, tree=tree,
                         keep_nearest=params.three_keep_nearest)
     rows = np.flatnonzero(out.sum(axis=1) == 2)
@@ -795,7 +850,8 @@ def settle_multi(member: np.ndarray, points: np.ndarray, r: np.ndarray, h: np.nd
                        fit=fit, plane_weight=params.joint_plane_weight, plane_reach=params.t_d,
                        mitre_band=params.mitre_band, side_planes=params.side_joint_planes,
                        overlap_middle=params.joint_plane_overlap_middle,
-                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt)
+                       bones=params.joint_plane_bones, side_tilt=params.side_plane_tilt,
+                       hip_plane=hip_plane)
     return out
 
 

@@ -310,3 +310,47 @@ def test_shoulder_plane_tilts_toward_the_midline():
     q = shoulder + np.array([[0.02, 0, 0.03], [0.02, 0, -0.03]])
     assert np.allclose(C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True, side_tilt=1.0),
                        C.joint_plane_score(q, c, a, fit_t, 0.3, side_planes=True))
+
+
+def squatting_hip():
+    """A waist and a left thigh held forward (the hip flexed 90 degrees), the hip joint beside the
+    waist's column within its length (as the fits place a squat's)."""
+    hip = np.array([0.1, 0, 0.47])
+    waist = SectionShape("waist", [0, 0, 0.45], [0, 0, 0.70], [0.15, 0.11], X)
+    thigh = SectionShape("thigh_l", hip + [0, -0.03, 0], hip + [0, -0.43, 0], [0.085, 0.085], X)
+    fit = BodyFit(sections={"waist": waist, "thigh_l": thigh},
+                  joints={"hip_l": hip, "hip_r": hip * [-1, 1, 1],
+                          "pelvis": np.array([0, 0, 0.45])})
+    return hip, waist, thigh, fit
+
+
+def test_hip_plane_is_the_groins_crease_tilted_out():
+    """A flexed hip: the plane is the mitre of the waist's downward axis and the thigh's, tilted
+    out, ``offset`` thigh widths past the joint; the lower belly above the thigh's start scores
+    for the waist, the thigh's top further along for the thigh. The shoulders' plane (the thigh's
+    cross-section through the joint) gave the belly to the thigh. `flexed_hip_plane` gives the
+    plane here (no crotch along the thighs), not with the legs down."""
+    hip, waist, thigh, fit = squatting_hip()
+    pts = hip + np.array([[0, -0.10, 0.10], [0, -0.15, 0.085]])        # belly, top of the thigh
+    w, t = np.full(2, I["waist"]), np.full(2, I["thigh_l"])
+    old = C.joint_plane_score(pts, w, t, fit, 0.3, side_planes=True, side_tilt=1.0)
+    assert old[0] > 0                                   # the belly went to the thigh
+    score = C.joint_plane_score(pts, w, t, fit, 0.3, side_planes=True, side_tilt=1.0,
+                                hip_plane=(0.55, 0.15))
+    n = np.array([0.55, -1 / np.sqrt(2), -1 / np.sqrt(2)])
+    n = n / np.linalg.norm(n)                           # down + forward, tilted out (+x)
+    origin = hip + 0.15 * thigh.width * n
+    assert np.allclose(score, np.clip((pts - origin) @ n / (0.3 * thigh.width), -1, 1))
+    assert score[0] < 0 < score[1]
+    cloud = np.concatenate([column_points(waist), column_points(thigh)])
+    assert C.flexed_hip_plane(cloud, fit, ClusterParams()) == (0.55, 0.15)
+    assert C.flexed_hip_plane(cloud, fit, ClusterParams(hip_planes=False)) is None
+    down = SectionShape("thigh_l", hip + [0, 0, -0.03], hip + [0, 0, -0.43], [0.07, 0.07], X)
+    right = SectionShape("thigh_r", down.start * [-1, 1, 1], down.end * [-1, 1, 1], [0.07, 0.07], X)
+    legs = {"waist": waist, "thigh_l": down, "thigh_r": right}
+    standing = BodyFit(sections=legs, joints=fit.joints)
+    crotch = np.array([[0, 0, 0.38], [0.005, 0.01, 0.385]])           # points between the legs
+    cloud = np.concatenate([column_points(waist), column_points(down), column_points(right),
+                            crotch])
+    assert C.flexed_hip_plane(cloud, standing, ClusterParams()) is None
+
