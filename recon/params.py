@@ -630,9 +630,11 @@ class FitParams:
                                            # its way; a scan missing one limb is not fitted again, each try being a
                                            # chance to place the limb on points not its own; chosen)
     fit_facing_reverse: int = 1            # 2.1: 1 = fit the reverse facing (turned 180 degrees) too and keep the fit that
-                                           # explains more points (front and back are the facing's least sure part;
-                                           # measured on 105 library scans at 10 mm: 98 -> 102 met issue 4's targets,
-                                           # 1 -> 0 wrong; the fit takes twice as long; chosen)
+                                           # explains more points when both list the same sections unfitted (front and
+                                           # back are the facing's least sure part; measured on 126 library scans at
+                                           # 10 mm: 116 -> 117 met issue 4's targets, 2 -> 1 wrong (a heavy body turned
+                                           # 30 degrees in the scanner, matched 17 cm low); the fit takes twice as long;
+                                           # chosen)
     fit_facing_margin: float = 0.02        # 2.1: ... the reverse fit is kept only when it explains at least this larger
                                            # fraction of the points (two right fits of one scan differ by up to 0.13,
                                            # two near-ties with one fit wrong by 0.002 and 0.011; chosen)

@@ -9,13 +9,15 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    directions on an axis-aligned voxel grid: without it, a scan turned 60 or 250 degrees came
    out differently, 73 of 84 library runs meeting issue 4's targets, 2 wrong). It is fitted in
    the reverse facing too (turned 180 degrees: front and back are the facing's least sure part),
-   and the reverse fit kept when it explains at least `fit_facing_margin` more of the points.
+   and the reverse fit kept when it explains at least `fit_facing_margin` more of the points and
+   lists the same sections unfitted.
    When either is refused or leaves `fit_facing_retry` sections unfitted, it is made again turned
    by 90 and 270 degrees, and the fit with fewest sections unfitted, then most points explained,
    is kept (`_fit_facings`). Measured on the library at 10 mm (k = 1, 2, 3, 1 mm noise at k = 3,
    the body turned 30 degrees in the scanner; 105 scans): the facing alone met issue 4's targets
    on 96, the facing with retries at 3 unfitted 98 (1 wrong: a heavy body turned 30 degrees,
-   matched 17 cm low), the pair with retries 102 (0 wrong).
+   matched 17 cm low), the pair with retries 100 (0 wrong); with the bodies turned 200 degrees at
+   k = 2 too (126 scans), 116 (2 wrong) -> 117 (1 wrong).
 1. Volume data (`recon.volume`): voxel size from the sparsest part's density, clamped to
    [`voxel_min`, `voxel_max`].
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
@@ -238,9 +240,12 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
     Front and back are the least sure part of a facing (the sign of a third moment), and the match
     that follows depends on where it starts: so the cloud is fitted in its facing and turned by
     180 degrees (`fit_facing_reverse`), and the reverse fit is kept only when it explains more of
-    the points (within `fit_coverage_distance`) by at least `fit_facing_margin`. The explained
-    fraction counts each point once: a section placed on points another section already explains
-    adds nothing, so a limb missing from the scan is not made up to win.
+    the points (within `fit_coverage_distance`) by at least `fit_facing_margin`, and lists the
+    same sections unfitted. A section fitted in one facing and listed in the other is where one of
+    the two is wrong, and which one the points cannot tell: a limb missing from the scan placed on
+    points not its own (a T-pose without its left forearm: the reverse facing placed a "forearm"
+    52 cm from the wrist, explaining more points with the rest of its fit), or a seen limb lost;
+    the facing's own fit is kept.
 
     When either of the two is refused or leaves at least `fit_facing_retry` sections unfitted (more
     than one limb's worth: a fit that lost its way, rarely a scan missing that much), the cloud is
@@ -262,7 +267,9 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
             first = first or e
             fits.append(None)
         if len(fits) == len(pair) and all(f is not None and -f[0] < params.fit_facing_retry for f in fits):
-            return max(fits, key=lambda f: f[1] - (f is not fits[0]) * params.fit_facing_margin)[2]
+            first_fit, other = fits[0], fits[-1]
+            same = set(other[2].unfitted) == set(first_fit[2].unfitted)
+            return (other if same and other[1] > first_fit[1] + params.fit_facing_margin else first_fit)[2]
     fits = [f for f in fits if f is not None]
     if not fits:
         raise first
