@@ -613,7 +613,9 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
 
     Of the torso candidates, each placed with all its sections, the one whose model explains most
-    points (`match_explain_distance`) wins. Returns the best pose, then up to `match_alternatives`
+    points (`match_explain_distance`) wins; when the legs size the body but crown to sole says
+    another size, it is matched at both and the same count decides (`match_size_both`). Returns the
+    best pose, then up to `match_alternatives`
     poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
     best first."""
     centroid = _thick_core(scorer.vol)
@@ -629,24 +631,9 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     rng = np.random.default_rng(params.fit_seed)
     sample = points if len(points) <= params.match_explain_points else \
         points[rng.choice(len(points), params.match_explain_points, replace=False)]
-    for rnd in range(max(1, params.match_rounds)):
-        cands = _match_torso(scorer, centroid, body, params, starts)
-        if rnd == 0 and stature is None:
-            # first size estimate: the body's extent along the torso axis near that axis
-            c, R = cands[0][1], cands[0][2]
-            rel = points - c
-            h = rel @ R[:, 2]
-            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
-            if near.sum() > 50:
-                ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
-                if abs(R[2, 2]) > 0.8:
-                    # too short for its torso: seated, squatting or kneeling; the limbs tell later.
-                    # Every candidate is matched again at this size: on a coarse volume (sparse
-                    # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
-                    # one tilted onto an arm; the whole-body match below does
-                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
-                    cands = _match_torso(scorer, centroid, body, params,
-                                         [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
+
+    def match_at(body, cands, hang):
+        # every torso candidate placed whole at this size; the one explaining most points wins
         trials = []
         placed = []
         eligible = []
@@ -670,7 +657,36 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                     continue   # the legs' roll gave a waist deeper than wide: they were split front-back
                 eligible.append(p)
         best = max(eligible or placed, key=lambda p: p.explained)
-        alternatives += [p for p in (eligible or placed) if p is not best]
+        return best, [p for p in (eligible or placed) if p is not best], placed
+
+    extra = []   # (body, hang): further sizes to match in the next round
+    for rnd in range(max(1, params.match_rounds)):
+        cands = _match_torso(scorer, centroid, body, params, starts)
+        if rnd == 0 and stature is None:
+            # first size estimate: the body's extent along the torso axis near that axis
+            c, R = cands[0][1], cands[0][2]
+            rel = points - c
+            h = rel @ R[:, 2]
+            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
+            if near.sum() > 50:
+                ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
+                if abs(R[2, 2]) > 0.8:
+                    # too short for its torso: seated, squatting or kneeling; the limbs tell later.
+                    # Every candidate is matched again at this size: on a coarse volume (sparse
+                    # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
+                    # one tilted onto an arm; the whole-body match below does
+                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
+                    cands = _match_torso(scorer, centroid, body, params,
+                                         [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
+        best, others, placed = match_at(body, cands, hang)
+        for other, other_hang in extra:
+            # the other size (legs and crown to sole disagreed): the points decide; its torso searched
+            # afresh (the previous match's torso, whose hips gave the legs' length, is the one in doubt)
+            b2, o2, p2 = match_at(other, _match_torso(scorer, centroid, other, params), other_hang)
+            if b2.explained > best.explained:
+                best, b2, others, o2, placed = b2, best, o2, others, p2
+            alternatives += [b2] + o2
+        alternatives += others
         if pose is not None and best.body.stature > pose.body.stature and best.explained < pose.explained:
             # matched again larger, the model explains fewer points (a larger model explains more
             # when it is right): the size came from a wrong pose; keep the first
@@ -705,6 +721,16 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         # sized from the crown because the legs, measured from the matched hips, disagreed: the torso
         # was misplaced along its axis; the next match hangs it from the crown wherever it is
         hang = params.match_resized_anchor_shift if use is crown and not params.match_size_from_crown else None
+        # sized from the legs while crown to sole says another size (by more than the resize
+        # tolerance, less than `match_size_disagree`): the hips may sit off along the torso's axis (a
+        # tall walker's matched 8 cm high: legs 2.18 m, crown to sole 2.02, true 1.97); the body is
+        # matched at both sizes and the one whose model explains more points is kept
+        # (`match_size_both`)
+        extra = []
+        if params.match_size_both and adult and use is legs and \
+                abs(np.median(legs) - np.median(crown)) > params.match_resize_tolerance:
+            other = standard_body(float(np.clip(pose.body.stature * np.median(crown), 0.8, 2.2)))
+            extra = [(other, params.match_resized_anchor_shift)]
     # other torso poses, best first, for when the best one's fine fit fails its checks
     alts, seen = [], [pose]
     for p in sorted(alternatives, key=lambda p: -p.explained):
