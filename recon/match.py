@@ -12,10 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
+from .joints import find_crotch
 from .geometry import cross, fibonacci_sphere, frames_from_dirs, perp, rotvec, tangent_dir, unit
 from .model import SectionShape
 from .params import FitParams
 from .volume import Volume
+
+
+#: Crown to crotch, as a fraction of stature: 0.52 (ANSUR II men, crotch height 0.48 of stature;
+#: women 0.478). On the library's upright bodies, from their points: 0.51 (tall) to 0.545 (heavy).
+CROWN_CROTCH = 0.52
 
 
 class Scorer:
@@ -697,7 +703,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         pose = best
         if stature is not None or rnd == params.match_rounds - 1:
             break
-        ratios = size_ratios(points, pose)
+        ratios = size_ratios(points, pose, params.match_leg_trunk_min)
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
@@ -707,8 +713,10 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         use = crown if adult and (params.match_size_from_crown or (
             legs and abs(np.median(legs) - np.median(crown)) > params.match_size_disagree)) else []
         use = use or legs
-        if not use or (len(use) < 2 and "body" not in ratios):
-            use = [v for k, v in ratios.items() if k != "body"]
+        if not use and ratios.get("cut"):
+            use = [ratios["trunk"]]   # both legs cut short (`size_ratios`): the trunk sizes the body
+        elif not use or (len(use) < 2 and "body" not in ratios):
+            use = [v for k, v in ratios.items() if k not in ("body", "trunk", "cut")]
         s = float(np.median(use))
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
@@ -741,7 +749,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     return [pose] + alts[:max(0, params.match_alternatives)]
 
 
-def size_ratios(points, pose: Pose) -> dict:
+def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
     """Measured / model lengths: per limb chain (root to free end), and ``body``: the list of crown
     to sole ratios over both legs (hip to crown along the head, plus the leg), which do not depend
     on where the coarse match put the torso along its axis.
@@ -786,6 +794,18 @@ def size_ratios(points, pose: Pose) -> dict:
         d_hand = np.min([s.distance(points[idx]) for s in hands], axis=0)
         near[idx[d_hand < head.distance(points[idx])]] = False
     if near.sum() >= 10:
+        crotch = find_crotch(points, pose.sections)
+        if crotch is not None:
+            crown = head.start + head.axis * float(np.quantile(h[near], 0.995))
+            ratios["trunk"] = float(np.linalg.norm(crown - crotch)) / (CROWN_CROTCH * body.stature)
+            # a leg chain far shorter than its trunk is not a whole leg: its end is cut from the
+            # scan (or out of the scanner's view); neither it nor crown to sole through it sizes
+            # the body
+            cut = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios and ratios[d] < min_leg * ratios["trunk"]]
+            for d in cut:
+                del ratios[d]
+            if cut:
+                ratios["cut"] = cut
         hips = pose.centre - 0.5 * torso_len(body) * pose.R[:, 2] + pose.R @ np.array([0, 0, body.length("hip_z")])
         up = np.linalg.norm(head.start - hips) + np.quantile(h[near], 0.995)
         up_model = body.length("neck") + body.section_length("head") - body.length("hip_z")

@@ -499,6 +499,13 @@ class FitParams:
                                            # 2.0 m; on the library's other adult-size matches they agree within
                                            # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
                                            # chosen)
+    match_leg_trunk_min: float = 0.8       # 2.1: a leg chain (hip to its farthest point along the lower leg) measuring less
+                                           # than this times the trunk (crown to the crotch seen in the points, over
+                                           # `recon.match.CROWN_CROTCH` statures) is not a whole leg (cut from the
+                                           # scan): it does not size the body, and with both legs so the trunk does
+                                           # (`recon.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
+                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
+                                           # (0 = off; chosen)
     match_size_both: int = 1               # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
                                            # sole differs from them by more than `match_resize_tolerance`, the body is
                                            # matched at both sizes and the one explaining more points is kept: the
