@@ -666,7 +666,9 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         return best, [p for p in (eligible or placed) if p is not best], placed
 
     extra = []   # (body, hang): further sizes to match in the next round
-    for rnd in range(max(1, params.match_rounds)):
+    cut = set()  # lower legs whose chain measured far shorter than the trunk (`size_ratios`)
+    last = max(1, params.match_rounds) - 1   # the last round
+    for rnd in range(max(1, params.match_rounds) + 1):
         cands = _match_torso(scorer, centroid, body, params, starts)
         if rnd == 0 and stature is None:
             # first size estimate: the body's extent along the torso axis near that axis
@@ -701,9 +703,10 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         if pose is not None:
             alternatives.append(pose)
         pose = best
-        if stature is not None or rnd == params.match_rounds - 1:
+        if stature is not None or rnd >= last:
             break
         ratios = size_ratios(points, pose, params.match_leg_trunk_min)
+        cut |= set(ratios.get("cut", ()))
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
@@ -714,7 +717,12 @@ def coarse_match(points, scorer, params: FitParams) -> list:
             legs and abs(np.median(legs) - np.median(crown)) > params.match_size_disagree)) else []
         use = use or legs
         if not use and ratios.get("cut"):
-            use = [ratios["trunk"]]   # both legs cut short (`size_ratios`): the trunk sizes the body
+            # both legs cut short (`size_ratios`): the trunk sizes the body, and is measured again on
+            # the next match (one round more): crown and crotch come from the head and thighs the
+            # match placed, which a first-guess size places less well (t_pose without lower legs:
+            # 1.50 m -> 1.60 m -> 1.77 m, true 1.76)
+            use = [ratios["trunk"]]
+            last = max(last, min(rnd + 2, max(1, params.match_rounds)))
         elif not use or (len(use) < 2 and "body" not in ratios):
             use = [v for k, v in ratios.items() if k not in ("body", "trunk", "cut")]
         s = float(np.median(use))
@@ -746,7 +754,14 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                or np.linalg.norm(p.centre - q.centre) > 0.5 * params.match_min_anchor_shift for q in seen):
             seen.append(p)
             alts.append(p)
-    return [pose] + alts[:max(0, params.match_alternatives)]
+    out = [pose] + alts[:max(0, params.match_alternatives)]
+    for p in out:
+        # a leg chain far shorter than its trunk ends where the scan does: its lower leg is not in
+        # it, and wherever the match put one (across to the other leg's stump) it lies on other
+        # points; it is listed unfitted unless its fitted surface is seen (the checks of
+        # `recon.posture`: volume score below `match_min_section_score`)
+        p.section_scores = {k: (min(v, -1.0) if k in cut else v) for k, v in (p.section_scores or {}).items()}
+    return out
 
 
 def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
