@@ -707,6 +707,10 @@ def coarse_match(points, scorer, params: FitParams) -> list:
             break
         ratios = size_ratios(points, pose, params.match_leg_trunk_min)
         cut |= set(ratios.get("cut", ()))
+        if len(cut) == 2 and "trunk" in ratios:
+            # legs judged cut stay cut: matched again, a lower leg may reach across to the other
+            # leg's points and measure whole (walking without lower legs: 1.01 and 0.65 of the trunk)
+            ratios = {"trunk": ratios["trunk"], "cut": sorted(cut)}
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
@@ -741,10 +745,13 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         # tolerance, less than `match_size_disagree`): the hips may sit off along the torso's axis (a
         # tall walker's matched 8 cm high: legs 2.18 m, crown to sole 2.02, true 1.97); the body is
         # matched at both sizes and the one whose model explains more points is kept
-        # (`match_size_both`)
+        # (`match_size_both`). Both sizes adult: a child's large head and short legs make the two
+        # disagree by nature, and the larger model then explains more points (a child at 20 mm:
+        # legs 1.41 m, crown to sole 1.53 m won, a lower leg listed though seen)
         extra = []
         if params.match_size_both and adult and use is legs and \
-                abs(np.median(legs) - np.median(crown)) > params.match_resize_tolerance:
+                abs(np.median(legs) - np.median(crown)) > params.match_resize_tolerance and \
+                pose.body.stature * np.median(legs) >= params.fit_anchor_min_stature:
             other = standard_body(float(np.clip(pose.body.stature * np.median(crown), 0.8, 2.2)))
             extra = [(other, params.match_resized_anchor_shift)]
     # other torso poses, best first, for when the best one's fine fit fails its checks
@@ -813,10 +820,13 @@ def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
         if crotch is not None:
             crown = head.start + head.axis * float(np.quantile(h[near], 0.995))
             ratios["trunk"] = float(np.linalg.norm(crown - crotch)) / (CROWN_CROTCH * body.stature)
-            # a leg chain far shorter than its trunk is not a whole leg: its end is cut from the
-            # scan (or out of the scanner's view); neither it nor crown to sole through it sizes
-            # the body
-            cut = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios and ratios[d] < min_leg * ratios["trunk"]]
+            # leg chains far shorter than their trunk, both of them, are not whole legs: the scan
+            # ends above the feet (legs cut from it, or out of the scanner's view); neither they nor
+            # crown to sole through them size the body. One short chain alone is more often a leg
+            # the match placed badly (a child's at 20 mm, k = 2: 0.78 of its trunk, the other 0.84)
+            legs = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
+            short = [d for d in legs if ratios[d] < min_leg * ratios["trunk"]]
+            cut = short if len(short) == 2 else []
             for d in cut:
                 del ratios[d]
             if cut:

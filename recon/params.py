@@ -499,10 +499,10 @@ class FitParams:
                                            # 2.0 m; on the library's other adult-size matches they agree within
                                            # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
                                            # chosen)
-    match_leg_trunk_min: float = 0.8       # 2.1: a leg chain (hip to its farthest point along the lower leg) measuring less
-                                           # than this times the trunk (crown to the crotch seen in the points, over
-                                           # `recon.match.CROWN_CROTCH` statures) is not a whole leg (cut from the
-                                           # scan): it does not size the body, and with both legs so the trunk does
+    match_leg_trunk_min: float = 0.8       # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
+                                           # less than this times the trunk (crown to the crotch seen in the points,
+                                           # over `recon.match.CROWN_CROTCH` statures) are not whole legs (cut from the
+                                           # scan): the trunk sizes the body and the lower legs are listed
                                            # (`recon.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
                                            # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
                                            # (0 = off; chosen)

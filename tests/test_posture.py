@@ -801,6 +801,23 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     assert before["outcome"] not in ("pass", "part")
 
 
+@pytest.mark.parametrize("k", [1, 2])
+def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
+    """child_arms_raised at 20 mm: a child's large head and short legs make crown to sole and the
+    legs disagree (1.53 against 1.41 m at k = 1), and one leg chain may measure 0.78 of the trunk
+    (k = 2); matched at the larger size (`match_size_both`), or sized from the trunk with the lower
+    legs listed (`match_leg_trunk_min`), the fit listed a lower leg the scan shows (k = 1) or missed
+    the targets (k = 2, elbow 10.1 cm). Both rules hold for adult sizes and both legs only."""
+    from benchmarks.fit_table import run_one
+
+    if "child_arms_raised" not in _library():
+        pytest.skip("library postures missing")
+    import poses
+
+    row = run_one(poses.load_body("child_arms_raised"), f"k{k}", 0.02, FitParams())
+    assert row["outcome"] == "pass", row
+
+
 def _crotch_scene(crotch_z=0.80, spacing=0.01):
     """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
     and a fit whose thighs start 15 cm above the crotch."""
