@@ -12,10 +12,16 @@ from dataclasses import dataclass
 import numpy as np
 
 from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
+from .joints import find_crotch
 from .geometry import cross, fibonacci_sphere, frames_from_dirs, perp, rotvec, tangent_dir, unit
 from .model import SectionShape
 from .params import FitParams
 from .volume import Volume
+
+
+#: Crown to crotch, as a fraction of stature: 0.52 (ANSUR II men, crotch height 0.48 of stature;
+#: women 0.478). On the library's upright bodies, from their points: 0.51 (tall) to 0.545 (heavy).
+CROWN_CROTCH = 0.52
 
 
 class Scorer:
@@ -613,7 +619,9 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
 
     Of the torso candidates, each placed with all its sections, the one whose model explains most
-    points (`match_explain_distance`) wins. Returns the best pose, then up to `match_alternatives`
+    points (`match_explain_distance`) wins; when the legs size the body but crown to sole says
+    another size, it is matched at both and the same count decides (`match_size_both`). Returns the
+    best pose, then up to `match_alternatives`
     poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
     best first."""
     centroid = _thick_core(scorer.vol)
@@ -629,24 +637,9 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     rng = np.random.default_rng(params.fit_seed)
     sample = points if len(points) <= params.match_explain_points else \
         points[rng.choice(len(points), params.match_explain_points, replace=False)]
-    for rnd in range(max(1, params.match_rounds)):
-        cands = _match_torso(scorer, centroid, body, params, starts)
-        if rnd == 0 and stature is None:
-            # first size estimate: the body's extent along the torso axis near that axis
-            c, R = cands[0][1], cands[0][2]
-            rel = points - c
-            h = rel @ R[:, 2]
-            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
-            if near.sum() > 50:
-                ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
-                if abs(R[2, 2]) > 0.8:
-                    # too short for its torso: seated, squatting or kneeling; the limbs tell later.
-                    # Every candidate is matched again at this size: on a coarse volume (sparse
-                    # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
-                    # one tilted onto an arm; the whole-body match below does
-                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
-                    cands = _match_torso(scorer, centroid, body, params,
-                                         [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
+
+    def match_at(body, cands, hang):
+        # every torso candidate placed whole at this size; the one explaining most points wins
         trials = []
         placed = []
         eligible = []
@@ -670,7 +663,38 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                     continue   # the legs' roll gave a waist deeper than wide: they were split front-back
                 eligible.append(p)
         best = max(eligible or placed, key=lambda p: p.explained)
-        alternatives += [p for p in (eligible or placed) if p is not best]
+        return best, [p for p in (eligible or placed) if p is not best], placed
+
+    extra = []   # (body, hang): further sizes to match in the next round
+    cut = set()  # lower legs whose chain measured far shorter than the trunk (`size_ratios`)
+    last = max(1, params.match_rounds) - 1   # the last round
+    for rnd in range(max(1, params.match_rounds) + 1):
+        cands = _match_torso(scorer, centroid, body, params, starts)
+        if rnd == 0 and stature is None:
+            # first size estimate: the body's extent along the torso axis near that axis
+            c, R = cands[0][1], cands[0][2]
+            rel = points - c
+            h = rel @ R[:, 2]
+            near = np.linalg.norm(rel - np.outer(h, R[:, 2]), axis=1) < 0.3
+            if near.sum() > 50:
+                ext = float(np.quantile(h[near], 0.999) - np.quantile(h[near], 0.001))
+                if abs(R[2, 2]) > 0.8:
+                    # too short for its torso: seated, squatting or kneeling; the limbs tell later.
+                    # Every candidate is matched again at this size: on a coarse volume (sparse
+                    # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
+                    # one tilted onto an arm; the whole-body match below does
+                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
+                    cands = _match_torso(scorer, centroid, body, params,
+                                         [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
+        best, others, placed = match_at(body, cands, hang)
+        for other, other_hang in extra:
+            # the other size (legs and crown to sole disagreed): the points decide; its torso searched
+            # afresh (the previous match's torso, whose hips gave the legs' length, is the one in doubt)
+            b2, o2, p2 = match_at(other, _match_torso(scorer, centroid, other, params), other_hang)
+            if b2.explained > best.explained:
+                best, b2, others, o2, placed = b2, best, o2, others, p2
+            alternatives += [b2] + o2
+        alternatives += others
         if pose is not None and best.body.stature > pose.body.stature and best.explained < pose.explained:
             # matched again larger, the model explains fewer points (a larger model explains more
             # when it is right): the size came from a wrong pose; keep the first
@@ -679,9 +703,14 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         if pose is not None:
             alternatives.append(pose)
         pose = best
-        if stature is not None or rnd == params.match_rounds - 1:
+        if stature is not None or rnd >= last:
             break
-        ratios = size_ratios(points, pose)
+        ratios = size_ratios(points, pose, params.match_leg_trunk_min)
+        cut |= set(ratios.get("cut", ()))
+        if len(cut) == 2 and "trunk" in ratios:
+            # legs judged cut stay cut: matched again, a lower leg may reach across to the other
+            # leg's points and measure whole (walking without lower legs: 1.01 and 0.65 of the trunk)
+            ratios = {"trunk": ratios["trunk"], "cut": sorted(cut)}
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
@@ -691,8 +720,15 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         use = crown if adult and (params.match_size_from_crown or (
             legs and abs(np.median(legs) - np.median(crown)) > params.match_size_disagree)) else []
         use = use or legs
-        if not use or (len(use) < 2 and "body" not in ratios):
-            use = [v for k, v in ratios.items() if k != "body"]
+        if not use and ratios.get("cut"):
+            # both legs cut short (`size_ratios`): the trunk sizes the body, and is measured again on
+            # the next match (one round more): crown and crotch come from the head and thighs the
+            # match placed, which a first-guess size places less well (t_pose without lower legs:
+            # 1.50 m -> 1.60 m -> 1.77 m, true 1.76)
+            use = [ratios["trunk"]]
+            last = max(last, min(rnd + 2, max(1, params.match_rounds)))
+        elif not use or (len(use) < 2 and "body" not in ratios):
+            use = [v for k, v in ratios.items() if k not in ("body", "trunk", "cut")]
         s = float(np.median(use))
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
@@ -705,6 +741,19 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         # sized from the crown because the legs, measured from the matched hips, disagreed: the torso
         # was misplaced along its axis; the next match hangs it from the crown wherever it is
         hang = params.match_resized_anchor_shift if use is crown and not params.match_size_from_crown else None
+        # sized from the legs while crown to sole says another size (by more than the resize
+        # tolerance, less than `match_size_disagree`): the hips may sit off along the torso's axis (a
+        # tall walker's matched 8 cm high: legs 2.18 m, crown to sole 2.02, true 1.97); the body is
+        # matched at both sizes and the one whose model explains more points is kept
+        # (`match_size_both`). Both sizes adult: a child's large head and short legs make the two
+        # disagree by nature, and the larger model then explains more points (a child at 20 mm:
+        # legs 1.41 m, crown to sole 1.53 m won, a lower leg listed though seen)
+        extra = []
+        if params.match_size_both and adult and use is legs and \
+                abs(np.median(legs) - np.median(crown)) > params.match_resize_tolerance and \
+                pose.body.stature * np.median(legs) >= params.fit_anchor_min_stature:
+            other = standard_body(float(np.clip(pose.body.stature * np.median(crown), 0.8, 2.2)))
+            extra = [(other, params.match_resized_anchor_shift)]
     # other torso poses, best first, for when the best one's fine fit fails its checks
     alts, seen = [], [pose]
     for p in sorted(alternatives, key=lambda p: -p.explained):
@@ -712,10 +761,17 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                or np.linalg.norm(p.centre - q.centre) > 0.5 * params.match_min_anchor_shift for q in seen):
             seen.append(p)
             alts.append(p)
-    return [pose] + alts[:max(0, params.match_alternatives)]
+    out = [pose] + alts[:max(0, params.match_alternatives)]
+    for p in out:
+        # a leg chain far shorter than its trunk ends where the scan does: its lower leg is not in
+        # it, and wherever the match put one (across to the other leg's stump) it lies on other
+        # points; it is listed unfitted unless its fitted surface is seen (the checks of
+        # `recon.posture`: volume score below `match_min_section_score`)
+        p.section_scores = {k: (min(v, -1.0) if k in cut else v) for k, v in (p.section_scores or {}).items()}
+    return out
 
 
-def size_ratios(points, pose: Pose) -> dict:
+def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
     """Measured / model lengths: per limb chain (root to free end), and ``body``: the list of crown
     to sole ratios over both legs (hip to crown along the head, plus the leg), which do not depend
     on where the coarse match put the torso along its axis.
@@ -760,6 +816,21 @@ def size_ratios(points, pose: Pose) -> dict:
         d_hand = np.min([s.distance(points[idx]) for s in hands], axis=0)
         near[idx[d_hand < head.distance(points[idx])]] = False
     if near.sum() >= 10:
+        crotch = find_crotch(points, pose.sections)
+        if crotch is not None:
+            crown = head.start + head.axis * float(np.quantile(h[near], 0.995))
+            ratios["trunk"] = float(np.linalg.norm(crown - crotch)) / (CROWN_CROTCH * body.stature)
+            # leg chains far shorter than their trunk, both of them, are not whole legs: the scan
+            # ends above the feet (legs cut from it, or out of the scanner's view); neither they nor
+            # crown to sole through them size the body. One short chain alone is more often a leg
+            # the match placed badly (a child's at 20 mm, k = 2: 0.78 of its trunk, the other 0.84)
+            legs = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
+            short = [d for d in legs if ratios[d] < min_leg * ratios["trunk"]]
+            cut = short if len(short) == 2 else []
+            for d in cut:
+                del ratios[d]
+            if cut:
+                ratios["cut"] = cut
         hips = pose.centre - 0.5 * torso_len(body) * pose.R[:, 2] + pose.R @ np.array([0, 0, body.length("hip_z")])
         up = np.linalg.norm(head.start - hips) + np.quantile(h[near], 0.995)
         up_model = body.length("neck") + body.section_length("head") - body.length("hip_z")

@@ -531,6 +531,20 @@ class FitParams:
                                            # 2.0 m; on the library's other adult-size matches they agree within
                                            # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
                                            # chosen)
+    match_leg_trunk_min: float = 0.8       # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
+                                           # less than this times the trunk (crown to the crotch seen in the points,
+                                           # over `recon.match.CROWN_CROTCH` statures) are not whole legs (cut from the
+                                           # scan): the trunk sizes the body and the lower legs are listed
+                                           # (`recon.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
+                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
+                                           # (0 = off; chosen)
+    match_size_both: int = 1               # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
+                                           # sole differs from them by more than `match_resize_tolerance`, the body is
+                                           # matched at both sizes and the one explaining more points is kept: the
+                                           # two measures disagree because the hips sit off along the torso's axis,
+                                           # or because the body's proportions are not the standard's, and the
+                                           # points tell which (a tall walker, true 1.97 m: legs 2.18 m, explains
+                                           # 0.836; crown to sole 2.02 m, explains 0.86; chosen)
     match_resized_anchor_shift: float = 0.0  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
                                            # misplaced along its axis), the next match slides the torso to hang from the
                                            # crown when it is off by more than this, m (0: always; the walker's resized

@@ -361,11 +361,22 @@ def _finish(work, pose: Pose, params: FitParams):
     secs = anchor_on_head_top(secs, pose.body, params)
     secs, resid, counts, researched = research_forearms(work, secs, resid, counts, pose.body, params)
 
-    # front and back from the data: relabel left/right when the provisional front was the back
-    sign = front_sign(work, secs, pose.R)
     coarse_secs = dict(pose.sections)
     coarse_scores = {k: v for k, v in (pose.section_scores or {}).items() if k not in researched}
     shell_scores = dict(pose.shell_scores or {})
+    # front and back from the data: relabel left/right when the provisional front was the back. The
+    # legs vote only with sections the scan shows (the checks below, those not depending on the
+    # front): a lower leg cut from the scan, placed in empty voxels, points anywhere, and its knee
+    # "bend" voted the body round (standing without its lower legs: wrists 52-145 cm off)
+    cover = section_cover(work, secs, params.fit_coverage_distance)
+    missing = {n for n in secs if kind_of(n) in ("thigh", "lower_leg") and (
+        counts.get(n, 0) < params.fit_min_points or cover.get(n, 0.0) < params.fit_min_section_cover
+        or (coarse_scores.get(n, 1.0) < params.match_min_section_score
+            and shell_scores.get(n, -1.0) < params.match_min_shell_score
+            and not (cover.get(n, 0.0) >= params.fit_leg_seen_cover
+                     and resid.get(n, np.inf) <= params.fit_leg_seen_rms)))}
+    missing |= {dist for prox, dist, *_ in LIMBS if prox in missing}
+    sign = front_sign(work, {k: v for k, v in secs.items() if k not in missing}, pose.R)
     if sign < 0:
         secs = {swap_sides(k): v.replace(name=swap_sides(k)) for k, v in secs.items()}
         resid = {swap_sides(k): v for k, v in resid.items()}

@@ -93,14 +93,80 @@ def test_points_on_another_sections_surface_are_shared():
     assert _shared_fraction(own[:0], free, "forearm_l", 0.02) == 0.0
 
 
-@pytest.mark.xfail(strict=True, reason="legs cut from the scan are not listed: the coarse match sizes the body from "
-                          "its leg chains (recon.match) and places the lower legs on the thigh stumps, the thighs on "
-                          "the pelvis; walking without its lower legs: nothing listed, median 11.9 / max 44.8 cm "
-                          "(ankles), stature judged 1.22 m (true 1.71). Even at the true stature (fit_stature) 4 of "
-                          "6 leg cuts on standing / t_pose / arms_forward stay WRONG (front and back from the legs, "
-                          "recon.joints.front_sign, flipped: wrists 52-145 cm off)")
-def test_cut_lower_legs_are_listed_and_the_rest_is_near_the_truth():
+@pytest.mark.parametrize("name", ["walking", "standing", "t_pose", "arms_forward"])
+def test_cut_lower_legs_are_listed_and_the_rest_is_near_the_truth(name):
+    """Both lower legs cut from the scan: the body is sized from its trunk (crown to crotch: the leg
+    chains measure 0.55-0.73 of it, `recon.match.size_ratios`), the lower legs are listed (walking:
+    one was placed across to the other thigh's stump), front and back come from the head and chest
+    (`recon.joints._trunk_vote`). Before: walking sized 1.22 m (true 1.71), median 11.9 / max 44.8
+    cm; standing, t_pose, arms_forward flipped front to back (wrists 52-145 cm off)."""
     cut = ("lower_leg_l", "lower_leg_r")
+    pts, joints = _cut_scan(name, cut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = estimate_posture(pts)
+    assert set(fit.unfitted) == set(cut), f"cut {cut}, listed {fit.unfitted}"
+    err, _ = score_fit(fit, joints)
+    assert np.median(list(err.values())) <= 0.05
+    worst = max(err, key=err.get)
+    assert err[worst] <= 0.15, f"{worst} {100 * err[worst]:.1f} cm off"
+
+
+@pytest.mark.parametrize("name", ["standing", "t_pose", "arms_forward"])
+def test_one_cut_lower_leg_is_listed_and_the_rest_is_near_the_truth(name):
+    """One lower leg cut: listed, the rest near the truth (standing was flipped front to back by the
+    missing lower leg's knee "bend": wrists 69 cm off)."""
+    cut = ("lower_leg_l",)
+    pts, joints = _cut_scan(name, cut)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = estimate_posture(pts)
+    assert set(fit.unfitted) == set(cut), f"cut {cut}, listed {fit.unfitted}"
+    err, _ = score_fit(fit, joints)
+    worst = max(err, key=err.get)
+    assert err[worst] <= 0.10, f"{worst} {100 * err[worst]:.1f} cm off"
+
+
+def _head_and_chest(nose: bool):
+    """Points on a head (ellipsoid-like column, radii 0.075 x 0.095 m) and a chest column, both
+    along +z, each with a bump in front (-y: a nose, a chest) when ``nose``; their sections."""
+    ang = np.linspace(0, 2 * np.pi, 90, endpoint=False)
+    pts = []
+    secs = {}
+    for name, z0, L, a, b in (("chest", 1.1, 0.35, 0.16, 0.10), ("head", 1.47, 0.22, 0.075, 0.095)):
+        A, Z = np.meshgrid(ang, np.arange(z0, z0 + L, 0.01))
+        x, y = a * np.cos(A.ravel()), b * np.sin(A.ravel())
+        if nose:
+            front = np.clip(-np.sin(A.ravel()), 0, None) ** 8     # a bump towards -y
+            y = y - 0.03 * front
+        pts.append(np.column_stack([x, y, Z.ravel()]))
+        secs[name] = SectionShape(name, [0, 0, z0], [0, 0, z0 + L], [a, b], [1.0, 0, 0])
+    return np.vstack(pts), secs
+
+
+@pytest.mark.parametrize("turn", [0.0, 180.0])
+def test_the_trunk_says_where_the_front_is(turn):
+    """`recon.joints.front_sign` without legs: the head and chest stick out in front (`_trunk_vote`);
+    the body faces -y, and turned 180 degrees +y; symmetric sections give no vote."""
+    from recon.joints import _trunk_vote, front_sign
+
+    pts, secs = _head_and_chest(nose=True)
+    R = rot_z(turn)
+    pts = pts @ R.T
+    secs = {k: SectionShape(k, R @ v.start, R @ v.end, v.radii, R @ v.frame_x) for k, v in secs.items()}
+    frame = np.eye(3)    # provisional front -y, back +y
+    assert front_sign(pts, secs, frame) == (1.0 if turn == 0.0 else -1.0)
+    assert abs(_trunk_vote(pts, secs, frame[:, 1])) > 1.0
+    flat, flat_secs = _head_and_chest(nose=False)
+    assert abs(_trunk_vote(flat, flat_secs, frame[:, 1])) < 0.1
+
+
+@pytest.mark.xfail(strict=True, reason="walking without its left lower leg: the coarse lower leg (in empty voxels, "
+                          "score -0.15) is fitted across onto the right knee and kept as a leg seen on its surface "
+                          "(fit_leg_seen_cover): nothing listed, ankle_l 73.6 cm off; a check of the fitted chain "
+                          "against match_max_adduction in recon.posture's checks would list it")
+def test_one_cut_lower_leg_of_a_walker_is_listed():
+    cut = ("lower_leg_l",)
     pts, joints = _cut_scan("walking", cut)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
