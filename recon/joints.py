@@ -29,12 +29,13 @@ def front_sign(points, secs: dict, R: np.ndarray) -> float:
     """+1 if the subject faces -R[:, 1] (the provisional front), -1 if it faces +R[:, 1].
 
     The legs vote (`_foot_vote`: feet point forward; knees bend backwards; hips flex forwards),
-    from the leg sections in ``secs`` (the caller leaves out those the scan does not show). When
-    they give no vote (straight legs without feet), or a leg section is missing (legs cut short:
-    what remains of them may lie on other points, a lower leg across to the other thigh's stump),
-    the head and the chest decide (`_trunk_vote`: the face and the chest stick out in front of
-    their sections' axes, the back of the head and the shoulder blades less behind them; on the 42
-    library runs at k = 1 and 3 it agreed with the legs' vote every time, 0.7 to 2.0 of 2)."""
+    from the leg sections in ``secs`` (the caller leaves out those the scan does not show: a lower
+    leg cut from the scan, placed in empty voxels, pointed anywhere and its knee "bend" voted the
+    body round). When they give no vote (straight legs without feet), or a leg section is missing
+    (legs cut short: the feet, the strongest cue, are gone), the head and the chest vote too
+    (`_trunk_vote`: the face and the chest stick out in front of their sections' axes, the back of
+    the head and the shoulder blades less behind them; on the 42 library runs at k = 1 and 3 it
+    agreed with the legs' vote every time, 0.7 to 2.0 of 2)."""
     back = R[:, 1]
     up = R[:, 2]
     scale = float(np.clip(np.linalg.norm(secs["waist"].end - secs["waist"].start) / 0.364, 0.5, 1.5)) \
@@ -59,10 +60,8 @@ def front_sign(points, secs: dict, R: np.ndarray) -> float:
                 votes -= 1.0 * np.sign(f)
     legs = {f"{k}_{x}" for k in ("thigh", "lower_leg") for x in "lr"}
     if votes == 0.0 or not legs <= set(secs):
-        # no leg evidence, or a leg section missing from the scan: legs cut short, whose remaining
-        # sections may lie on other points (a lower leg on its cut thigh's stump); the head and
-        # chest decide, when they can
-        votes = _trunk_vote(points, secs, back) or votes
+        # no leg evidence, or a leg section missing from the scan: the head and chest vote too
+        votes += _trunk_vote(points, secs, back)
     return 1.0 if votes >= 0 else -1.0
 
 
