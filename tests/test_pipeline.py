@@ -320,12 +320,12 @@ def estimated():
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
 def test_estimated_posture_on_the_library(estimated):
     """Regression level of the whole pipeline on every shipped posture (measured at this commit:
-    truth among labels mean 0.964, min 0.947 tall_walking; 1/m-scored min 0.934 tall_walking;
-    bridging mean 0.24 %)."""
+    truth among labels mean 0.965, min 0.952 heavy_standing; 1/m-scored min 0.940 heavy_standing;
+    bridging mean 0.23 %)."""
     prop = [r["proposed"] for r in estimated.values()]
     assert np.mean([r["accuracy"]["section_accuracy_any"] for r in prop]) >= 0.96
-    assert min(r["accuracy"]["section_accuracy_any"] for r in prop) >= 0.94
-    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.93
+    assert min(r["accuracy"]["section_accuracy_any"] for r in prop) >= 0.95
+    assert min(r["accuracy"]["section_accuracy"] for r in prop) >= 0.935
     assert np.mean([r["bridging"] for r in prop]) < 0.0035
     for name, r in estimated.items():   # the paper's claim, posture by posture
         assert r["proposed"]["spurious"] < r["simple"]["spurious"], name
@@ -340,13 +340,11 @@ def test_estimated_posture_bridging_meets_the_issue_target(estimated):
 
 
 @pytest.mark.skipif(not _shipped(), reason="no shipped postures")
-@pytest.mark.xfail(strict=True, reason="issue 5's accuracy target is met on 20 of 21 postures with the posture "
-                          "estimated in the scan's own facing (rotation-invariant fit): tall_walking 0.947 (its "
-                          "torso fitted low: the chest joint 2 cm, the neck 3 cm; the left thigh's start 6 cm "
-                          "forward); squat 0.954 since the flexed hips' plane (0.945 before)")
 def test_estimated_posture_meets_the_issue_targets(estimated):
     """Issue 5, the pipeline as users run it (posture estimated), on every shipped posture: truth
-    among the point's labels >= 95 % (measured 0.947 tall_walking, 0.954 squat to 0.979 t_pose)."""
+    among the point's labels >= 95 % (measured 0.952 heavy_standing, 0.954 squat to 0.979 t_pose;
+    tall_walking 0.947 -> 0.976 since its reverse facing is fitted too, `fit_facing_reverse`; squat
+    0.945 -> 0.954 since the flexed hips' plane, `hip_planes`)."""
     for name, r in estimated.items():
         assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name
 
