@@ -34,6 +34,15 @@ def _cut_scan(name, cut, turn=0.0):
     return scan.points[keep], body.joint_dict()
 
 
+def _fit_cut(name, cut, turn=0.0):
+    """`_cut_scan` fitted: (BodyFit, per joint error in m)."""
+    pts, joints = _cut_scan(name, cut, turn)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        fit = estimate_posture(pts)
+    return fit, score_fit(fit, joints)[0]
+
+
 @pytest.mark.parametrize("name, cut, turn", [
     # each of these placed a section on points not its own before the arm-clearance check
     # (walking: a forearm across the chest, wrist 55 cm off; arms_forward: the right forearm folded
@@ -44,15 +53,11 @@ def _cut_scan(name, cut, turn=0.0):
     ("t_pose", ("upper_arm_l", "forearm_l"), 0.0),
 ])
 def test_cut_sections_are_listed_and_the_rest_is_near_the_truth(name, cut, turn):
-    pts, joints = _cut_scan(name, cut, turn)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = estimate_posture(pts)
+    fit, err = _fit_cut(name, cut, turn)
     assert set(cut) <= set(fit.unfitted), f"cut {cut}, listed {fit.unfitted}"
     assert not set(cut) & set(fit.sections)
     # only sections the scan does not show are listed: the other arm, the legs, the head are fitted
     assert set(fit.unfitted) == set(cut), f"cut {cut}, listed {fit.unfitted}"
-    err, _ = score_fit(fit, joints)
     worst = max(err, key=err.get)
     assert err[worst] <= 0.15, f"{worst} {100 * err[worst]:.1f} cm off"
 
@@ -101,12 +106,8 @@ def test_cut_lower_legs_are_listed_and_the_rest_is_near_the_truth(name):
     (`recon.joints._trunk_vote`). Before: walking sized 1.22 m (true 1.71), median 11.9 / max 44.8
     cm; standing, t_pose, arms_forward flipped front to back (wrists 52-145 cm off)."""
     cut = ("lower_leg_l", "lower_leg_r")
-    pts, joints = _cut_scan(name, cut)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = estimate_posture(pts)
+    fit, err = _fit_cut(name, cut)
     assert set(fit.unfitted) == set(cut), f"cut {cut}, listed {fit.unfitted}"
-    err, _ = score_fit(fit, joints)
     assert np.median(list(err.values())) <= 0.05
     worst = max(err, key=err.get)
     assert err[worst] <= 0.15, f"{worst} {100 * err[worst]:.1f} cm off"
@@ -117,12 +118,8 @@ def test_one_cut_lower_leg_is_listed_and_the_rest_is_near_the_truth(name):
     """One lower leg cut: listed, the rest near the truth (standing was flipped front to back by the
     missing lower leg's knee "bend": wrists 69 cm off)."""
     cut = ("lower_leg_l",)
-    pts, joints = _cut_scan(name, cut)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = estimate_posture(pts)
+    fit, err = _fit_cut(name, cut)
     assert set(fit.unfitted) == set(cut), f"cut {cut}, listed {fit.unfitted}"
-    err, _ = score_fit(fit, joints)
     worst = max(err, key=err.get)
     assert err[worst] <= 0.10, f"{worst} {100 * err[worst]:.1f} cm off"
 
@@ -167,10 +164,6 @@ def test_the_trunk_says_where_the_front_is(turn):
                           "against match_max_adduction in recon.posture's checks would list it")
 def test_one_cut_lower_leg_of_a_walker_is_listed():
     cut = ("lower_leg_l",)
-    pts, joints = _cut_scan("walking", cut)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        fit = estimate_posture(pts)
+    fit, err = _fit_cut("walking", cut)
     assert set(cut) <= set(fit.unfitted)
-    err, _ = score_fit(fit, joints)
     assert max(err.values()) <= 0.15
