@@ -159,7 +159,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
    shoulder (pointing up, and more backwards than sideways or upwards: not anatomy) was fitted onto
    the shoulder of a misplaced torso and is listed, and so is a thigh pointing up within 60 degrees
-   of the torso's axis (a hip flexed past its active range). A fit whose sections (all placed ones) explain fewer than
+   of the torso's axis (a hip flexed past its active range), and a lower leg whose chain, thigh's
+   start to sole, runs across the body more than `match_max_adduction` of its length (`_leg_across`:
+   the match searches no such chain; a lower leg cut from the scan was dragged onto the other
+   knee). A fit whose sections (all placed ones) explain fewer than
    `fit_min_coverage` of the points within `fit_coverage_distance`, or with more than
    `fit_max_unfitted` sections unfitted, or whose head is unfitted although the scan shows one above
    the neck (`_head_seen`: the head, whose crown pins the torso along its axis, was not found, so the
@@ -401,6 +404,7 @@ def _finish(work, pose: Pose, params: FitParams):
     unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
                      or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
                      or (kind_of(n) == "thigh" and _thigh_up(secs[n].axis, pose.R))
+                     or (kind_of(n) == "lower_leg" and _leg_across(n, secs, params.match_max_adduction))
                      or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
                      or (coarse_scores.get(n, 1.0) < params.match_min_section_score
                          and shell_scores.get(n, -1.0) < params.match_min_shell_score
@@ -502,6 +506,24 @@ def _thigh_up(d: np.ndarray, R: np.ndarray) -> bool:
     flexion, a squat, is 102). Such a thigh was fitted onto the torso or an arm: a seated body at
     20 mm came out with a thigh up the chest (54 degrees from a tilted torso's axis), 46 cm off."""
     return float(d @ R[:, 2]) > 0.5
+
+
+def _leg_across(name: str, secs: dict, max_adduction: float) -> bool:
+    """Whether the leg chain ending in the lower leg ``name`` runs across the body: from its thigh's
+    start to its sole, more than ``max_adduction`` (cosine) of its length toward the other hip. The
+    coarse match searches no such chain (`match_max_adduction`), so a fitted one was dragged across
+    by the fine fit onto the other leg's points: a walker's left lower leg cut from the scan, placed
+    in empty voxels and kept as a leg seen on its surface, ended on the right knee, ankle 74 cm
+    off."""
+    other = {"lower_leg_l": "thigh_r", "lower_leg_r": "thigh_l"}[name]
+    thigh = "thigh" + name[len("lower_leg"):]
+    if thigh not in secs or other not in secs or name not in secs:
+        return False
+    out = secs[thigh].start - secs[other].start
+    if np.linalg.norm(out) < 1e-9:
+        return False
+    chain = secs[name].end - secs[thigh].start
+    return bool(chain @ out / np.linalg.norm(out) < -max_adduction * np.linalg.norm(chain))
 
 
 def _check_leg_length(points, secs: dict, body: StandardBody) -> None:

@@ -158,12 +158,32 @@ def test_the_trunk_says_where_the_front_is(turn):
     assert abs(_trunk_vote(flat, flat_secs, frame[:, 1])) < 0.1
 
 
-@pytest.mark.xfail(strict=True, reason="walking without its left lower leg: the coarse lower leg (in empty voxels, "
-                          "score -0.15) is fitted across onto the right knee and kept as a leg seen on its surface "
-                          "(fit_leg_seen_cover): nothing listed, ankle_l 73.6 cm off; a check of the fitted chain "
-                          "against match_max_adduction in recon.posture's checks would list it")
 def test_one_cut_lower_leg_of_a_walker_is_listed():
+    """walking without its left lower leg: the coarse lower leg (in empty voxels) was fitted across
+    onto the right knee and kept as a leg seen on its surface, ankle_l 73.6 cm off, nothing listed;
+    a leg chain running across the body is listed (`recon.posture._leg_across`)."""
     cut = ("lower_leg_l",)
     fit, err = _fit_cut("walking", cut)
     assert set(cut) <= set(fit.unfitted)
     assert max(err.values()) <= 0.15
+
+
+@pytest.mark.parametrize("foot_x, across", [(0.10, False), (0.0, False), (-0.05, False), (-0.25, True)])
+def test_a_leg_chain_running_across_the_body_is_found(foot_x, across):
+    """`recon.posture._leg_across`: hips at x = +-0.09 m, the left thigh straight down 0.42 m, the
+    left sole at ``foot_x``: a chain ending 0.34 m toward the other hip over 0.92 m of length is more
+    than `match_max_adduction` (0.25) across; a leg held in or out a little is not."""
+    from recon.posture import _leg_across
+
+    def col(name, a, b):
+        return SectionShape(name, np.array(a, float), np.array(b, float), [0.06, 0.06], [1.0, 0, 0])
+
+    secs = {"thigh_l": col("thigh_l", [0.09, 0, 0.9], [0.09, 0, 0.48]),
+            "thigh_r": col("thigh_r", [-0.09, 0, 0.9], [-0.09, 0, 0.48]),
+            "lower_leg_l": col("lower_leg_l", [0.09, 0, 0.48], [foot_x, 0, 0.05])}
+    assert _leg_across("lower_leg_l", secs, 0.25) is across
+    # mirrored: the right leg's chain toward +x
+    mirrored = {("thigh_r" if k == "thigh_l" else "thigh_l" if k == "thigh_r" else "lower_leg_r"):
+                v.replace(start=v.start * [-1, 1, 1], end=v.end * [-1, 1, 1]) for k, v in secs.items()}
+    assert _leg_across("lower_leg_r", mirrored, 0.25) is across
+    assert _leg_across("lower_leg_r", secs, 0.25) is False   # no right lower leg: nothing to say
