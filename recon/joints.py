@@ -81,12 +81,13 @@ def _trunk_vote(points, secs: dict, back: np.ndarray, scale: float = TRUNK_SKEW)
     their skewness along ``back`` is negative when the body faces ``-back`` (on the 21 library
     bodies from their labelled points: head -0.11 to -0.20, chest -0.16 to -0.58). Each section
     votes ``-tanh(skew / scale)``; one with fewer than 30 points there votes 0."""
+    points = np.asarray(points, dtype=float)
     votes = 0.0
     for name in ("head", "chest"):
         s = secs.get(name)
         if s is None:
             continue
-        q = s.local(np.asarray(points, dtype=float))
+        q = s.local(points)
         rho = np.hypot(q[:, 0], q[:, 1])
         sel = (q[:, 2] >= 0) & (q[:, 2] <= s.length) & (rho < 1.5 * float(s.radii.max()))
         if sel.sum() < 30:
@@ -95,7 +96,7 @@ def _trunk_vote(points, secs: dict, back: np.ndarray, scale: float = TRUNK_SKEW)
         nb = float(np.linalg.norm(b))
         if nb < 0.3:
             continue
-        votes -= float(np.tanh(_skew(np.asarray(points, dtype=float)[sel] @ (b / nb)) / scale))
+        votes -= float(np.tanh(_skew(points[sel] @ (b / nb)) / scale))
     return votes
 
 

@@ -383,34 +383,35 @@ def _finish(work, pose: Pose, params: FitParams):
     # front): a lower leg cut from the scan, placed in empty voxels, points anywhere, and its knee
     # "bend" voted the body round (standing without its lower legs: wrists 52-145 cm off)
     cover = section_cover(work, secs, params.fit_coverage_distance)
-    missing = {n for n in secs if kind_of(n) in ("thigh", "lower_leg") and (
-        counts.get(n, 0) < params.fit_min_points or cover.get(n, 0.0) < params.fit_min_section_cover
-        or (coarse_scores.get(n, 1.0) < params.match_min_section_score
-            and shell_scores.get(n, -1.0) < params.match_min_shell_score
-            and not (cover.get(n, 0.0) >= params.fit_leg_seen_cover
-                     and resid.get(n, np.inf) <= params.fit_leg_seen_rms)))}
+
+    def unseen(n):
+        # the checks that do not depend on the front: too few points, too little of the surface
+        # covered, or matched in empty voxels (a leg section kept when its fitted surface is seen)
+        return (counts.get(n, 0) < params.fit_min_points or cover.get(n, 0.0) < params.fit_min_section_cover
+                or (coarse_scores.get(n, 1.0) < params.match_min_section_score
+                    and shell_scores.get(n, -1.0) < params.match_min_shell_score
+                    and not (kind_of(n) in ("thigh", "lower_leg")
+                             and cover.get(n, 0.0) >= params.fit_leg_seen_cover
+                             and resid.get(n, np.inf) <= params.fit_leg_seen_rms)))
+
+    missing = {n for n in secs if kind_of(n) in ("thigh", "lower_leg") and unseen(n)}
     missing |= {dist for prox, dist, *_ in LIMBS if prox in missing}
     sign = front_sign(work, {k: v for k, v in secs.items() if k not in missing}, pose.R)
     if sign < 0:
         secs = {swap_sides(k): v.replace(name=swap_sides(k)) for k, v in secs.items()}
         resid = {swap_sides(k): v for k, v in resid.items()}
         counts = {swap_sides(k): v for k, v in counts.items()}
+        cover = {swap_sides(k): v for k, v in cover.items()}   # the same surfaces, renamed
         coarse_secs = {swap_sides(k): v.replace(name=swap_sides(k)) for k, v in coarse_secs.items()}
         coarse_scores = {swap_sides(k): v for k, v in coarse_scores.items()}
         shell_scores = {swap_sides(k): v for k, v in shell_scores.items()}
 
-    cover = section_cover(work, secs, params.fit_coverage_distance)
     back = sign * pose.R[:, 1]
-    unfitted = tuple(n for n in SECTIONS if counts.get(n, 0) < params.fit_min_points
+    unfitted = tuple(n for n in SECTIONS if unseen(n)
                      or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
                      or (kind_of(n) == "thigh" and _thigh_up(secs[n].axis, pose.R))
                      or (kind_of(n) == "lower_leg" and _leg_across(n, secs, params.match_max_adduction))
-                     or not np.isfinite(resid.get(n, np.nan)) or cover.get(n, 0.0) < params.fit_min_section_cover
-                     or (coarse_scores.get(n, 1.0) < params.match_min_section_score
-                         and shell_scores.get(n, -1.0) < params.match_min_shell_score
-                         and not (kind_of(n) in ("thigh", "lower_leg")
-                                  and cover.get(n, 0.0) >= params.fit_leg_seen_cover
-                                  and resid.get(n, np.inf) <= params.fit_leg_seen_rms))
+                     or not np.isfinite(resid.get(n, np.nan))
                      or (kind_of(n) in ("upper_arm", "forearm")
                          and arm_doubtful(cover.get(n, 0.0), resid.get(n, 0.0), params))
                      or _on_trunk(n, secs, pose.body, params))
