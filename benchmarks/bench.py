@@ -184,7 +184,7 @@ class PeakMemory:
 
 
 def _recon_params(params):
-    from recon import ReconParams
+    from bodyscan.recon import ReconParams
 
     if params is None or isinstance(params, dict):
         return ReconParams.from_overrides(params or {})
@@ -245,7 +245,7 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
     row: dict = {"body": body.name, "method": method}
     row.update(scan_columns(scan))
     if method in RECON_METHODS:
-        import recon
+        from bodyscan import recon
 
         rp = _recon_params(params)
         with PeakMemory() as mem:
@@ -328,8 +328,8 @@ class BenchConfig:
 
     def resolved(self) -> "BenchConfig":
         """Defaults filled in and every name checked (raises `BenchError`)."""
-        from poses.body import load_body
-        from poses.library import list_bodies
+        from bodyscan.poses.body import load_body
+        from bodyscan.poses.library import list_bodies
 
         bodies = tuple(self.bodies) or tuple(list_bodies())
         if not bodies:
@@ -350,7 +350,7 @@ class BenchConfig:
             raise BenchError("recon parameters were given but no recon method (proposed, simple) runs")
         if not self.ks or any(not 0 < float(k) < 6 for k in self.ks):
             raise BenchError(f"k values must be in (0, 6) (laser angle k * 15 degrees), got {self.ks}")
-        import simulator
+        from bodyscan import simulator
 
         for p in self.presets:
             simulator.preset(p, **self.scanner)
@@ -384,7 +384,7 @@ def _log(msg: str, stream) -> None:
 
 def _estimate_fit(scan, params):
     """The posture of ``scan`` with ``params``, and the seconds it took."""
-    from recon.pipeline import estimate_fit
+    from bodyscan.recon.pipeline import estimate_fit
 
     t0 = time.perf_counter()
     fit = estimate_fit(np.asarray(scan.points, dtype=np.float64), params,
@@ -394,8 +394,8 @@ def _estimate_fit(scan, params):
 
 def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bool) -> list:
     """Every scan and method of one posture: [(row, mesh or None)] (runs in a worker process)."""
-    import simulator
-    from poses.body import load_body
+    from bodyscan import simulator
+    from bodyscan.poses.body import load_body
 
     body = load_body(body_name)
     ground_truth(body, config.metric)
@@ -733,7 +733,7 @@ def package_versions() -> dict:
 
 def run_metadata(config: BenchConfig, started: float, jobs: int = 1) -> dict:
     """Settings, seeds, versions, commit and host of a run (``run.json``)."""
-    from recon import ReconParams
+    from bodyscan.recon import ReconParams
 
     meta = {
         "command": " ".join(sys.argv),

@@ -112,7 +112,7 @@ def reconstruct_peer_command(args) -> int:
     """``bodyscan reconstruct --method <peer>``: a peer's mesh of a cloud, written as PLY."""
     import trimesh
 
-    from recon.cloud import read_cloud
+    from bodyscan.recon.cloud import read_cloud
 
     from . import BenchError
     from .peers import reconstruct_peer
@@ -225,7 +225,7 @@ def _load_mesh(path):
 def score_command(args) -> int:
     import numpy as np
 
-    from poses.body import load_body
+    from bodyscan.poses.body import load_body
 
     from . import BenchError
     from .bench import score
@@ -235,7 +235,7 @@ def score_command(args) -> int:
     body.require_ground_truth("scoring")
     scan = None
     if args.cloud:
-        import simulator
+        from bodyscan import simulator
 
         scan = simulator.read_scan(args.cloud)
     joints = None

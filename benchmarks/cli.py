@@ -14,19 +14,19 @@ import sys
 
 #: Modules whose ``register(subparsers)`` adds subcommands, in the order of ``--help``.
 COMMAND_MODULES = (
-    "poses.cli",
-    "simulator.cli",
-    "recon.cli",
-    "benchmarks.bench_cli",
-    "benchmarks.sweep_cli",
+    "bodyscan.poses.cli",
+    "bodyscan.simulator.cli",
+    "bodyscan.recon.cli",
+    "bodyscan.benchmarks.bench_cli",
+    "bodyscan.benchmarks.sweep_cli",
 )
 
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean "the user asked for something wrong": one line, exit code 2."""
     errors: list[type[BaseException]] = [FileNotFoundError, IsADirectoryError, PermissionError]
-    for module, name in (("poses", "BodyError"), ("simulator", "ScanError"),
-                         ("recon", "ReconError"), ("benchmarks", "BenchError")):
+    for module, name in (("bodyscan.poses", "BodyError"), ("bodyscan.simulator", "ScanError"),
+                         ("bodyscan.recon", "ReconError"), ("bodyscan.benchmarks", "BenchError")):
         try:
             errors.append(getattr(importlib.import_module(module), name))
         except (ImportError, AttributeError):

@@ -2,7 +2,7 @@
 
 Usage::
 
-    python -m benchmarks.fit_table [--resolution 0.01] [--bodies a,b] [--conditions k1,k1_rot137,k2,k3]
+    python -m bodyscan.benchmarks.fit_table [--resolution 0.01] [--bodies a,b] [--conditions k1,k1_rot137,k2,k3]
                                    [--param NAME=VALUE ...]
 
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
@@ -42,7 +42,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from recon.bodymodel import LIMBS
+from bodyscan.recon.bodymodel import LIMBS
 
 #: Limb sections and the ground-truth bone each follows.
 BONES = {sec: bone for prox, dist, a, b, c in LIMBS for sec, bone in ((prox, (a, b)), (dist, (b, c)))}
@@ -93,7 +93,7 @@ def seen_fractions(body, gt_section: np.ndarray, resolution: float) -> dict:
     resolution : float
         The scan's sample spacing, metres.
     """
-    from recon.model import SECTIONS
+    from bodyscan.recon.model import SECTIONS
 
     fs = np.asarray(body.face_section())
     keep = fs >= 0
@@ -117,8 +117,8 @@ def outcome(err: dict, ang: dict, unfitted, seen: dict | None = None) -> str:
 
 def run_one(body, condition: str, resolution: float, params=None) -> dict:
     """Scan ``body`` under ``condition``, fit, score: a table row (dict)."""
-    import simulator
-    from recon import ReconError, estimate_posture
+    from bodyscan import simulator
+    from bodyscan.recon import ReconError, estimate_posture
 
     k = int(condition.split("_")[0][1:])
     noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
@@ -130,7 +130,7 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     pts, gt = scan.points, scan.gt_section
     if "without-" in condition:
         # a partial body: the points of the named sections cut from the scan
-        from recon.model import SECTIONS
+        from bodyscan.recon.model import SECTIONS
 
         cut = re.split(r"_(?:noise|rot|turn)", condition.split("without-")[1])[0].split("+")
         keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
@@ -181,8 +181,8 @@ def main(argv=None) -> int:
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
     a = ap.parse_args(argv)
 
-    from poses import list_bodies, load_body
-    from recon import FitParams
+    from bodyscan.poses import list_bodies, load_body
+    from bodyscan.recon import FitParams
 
     params = FitParams.from_strings(a.param)
     names = [b for b in a.bodies.split(",") if b] or list_bodies()

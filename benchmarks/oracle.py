@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from recon.bodymodel import JOINT_CAP
-from recon.model import SECTIONS, BodyFit, SectionShape
+from bodyscan.recon.bodymodel import JOINT_CAP
+from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 
 #: section: (start joint, direction joint, free end?). The axis runs along start -> direction joint,
 #: through the centre of the section's vertices; a free end (head top, hand, sole) is closed by a

@@ -2,9 +2,9 @@
 
 Usage::
 
-    python -m benchmarks.perf_recon [--body standing] [--dense-resolution 0.0014] [--repeat 3]
+    python -m bodyscan.benchmarks.perf_recon [--body standing] [--dense-resolution 0.0014] [--repeat 3]
                                     [--oracle] [--method proposed]
-    python -m benchmarks.perf_recon --sweep-tn [--bodies a,b,...] [--factors 0,0.25,...] [--oracle]
+    python -m bodyscan.benchmarks.perf_recon --sweep-tn [--bodies a,b,...] [--factors 0,0.25,...] [--oracle]
 
 Prints, per scan, the number of points and the best-of-``repeat`` seconds of every stage (the fit's
 stages prefixed ``fit_``, then ``coords``, ``cluster``, ``surface``, ``total``), and the process's
@@ -31,7 +31,7 @@ import warnings
 
 def time_scan(points, view_dir, method, fit, repeat):
     """Best-of-``repeat`` stage times (dict) of `recon.reconstruct` on one cloud."""
-    from recon import reconstruct
+    from bodyscan.recon import reconstruct
 
     best = None
     for _ in range(repeat):
@@ -51,10 +51,10 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
     the T_n factor), averaged over ``bodies``."""
     import numpy as np
 
-    from poses import load_body
-    from recon import ReconParams, estimate_posture, reconstruct
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.poses import load_body
+    from bodyscan.recon import ReconParams, estimate_posture, reconstruct
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     from .metrics import GroundTruth, MetricParams, bridging, section_accuracy, spurious
     from .oracle import fit_from_body
@@ -107,9 +107,9 @@ def main(argv=None) -> int:
                  args.sweep or "t_n_factor")
         return 0
 
-    from poses import load_body
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.poses import load_body
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     from .oracle import fit_from_body
 

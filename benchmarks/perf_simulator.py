@@ -1,6 +1,6 @@
 """Speed of the simulator: a six-view 2 mm full-body scan against raw Embree on the same rays.
 
-Run ``python benchmarks/perf_simulator.py [--body standing] [--resolution 0.002] [--repeat 3]``.
+Run ``python -m bodyscan.benchmarks.perf_simulator [--body standing] [--resolution 0.002] [--repeat 3]``.
 It scans the body with k = 1, 2, 3 and the front and rear heads (six views) through one `Scanner`
 (one Embree scene, camera rays cast once per head), then replays exactly the rays the scan cast
 with embreex's ``EmbreeScene.run`` alone, and prints both rates, their ratio, and peak memory.
@@ -51,9 +51,9 @@ def main(argv=None) -> int:
     parser.add_argument("--repeat", type=int, default=5, help="timed repetitions, best kept (default: 5)")
     args = parser.parse_args(argv)
 
-    from poses import load_body
-    from simulator import Scanner, preset
-    from simulator.raycast import RayCaster
+    from bodyscan.poses import load_body
+    from bodyscan.simulator import Scanner, preset
+    from bodyscan.simulator.raycast import RayCaster
 
     body = load_body(args.body)
     base = preset("paper", resolution=args.resolution, projection=args.projection)

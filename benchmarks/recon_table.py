@@ -3,7 +3,7 @@ decided them, spurious and bridging area.
 
 Usage::
 
-    nice python -m benchmarks.recon_table [--bodies a,b] [--top 3] [--param NAME=VALUE ...] [--estimated]
+    nice python -m bodyscan.benchmarks.recon_table [--bodies a,b] [--top 3] [--param NAME=VALUE ...] [--estimated]
                                           [--turn DEG]
 
 Each body of the library is scanned with the `paper` preset, its posture is the oracle one
@@ -38,7 +38,7 @@ RULES = ("single", "refine", "adopt", "3+", "joint", "two", "none")
 
 def rule_of_points(points, fit, params, coords, tree):
     """(n,) int index into `RULES`: the clustering rule that decided each point (proposed)."""
-    from recon import cluster as C
+    from bodyscan.recon import cluster as C
 
     cp = params.cluster
     r, theta, h = coords
@@ -66,11 +66,11 @@ def rule_of_points(points, fit, params, coords, tree):
 def body_row(name, overrides, top=3, estimated=False, turn=0.0):
     """Measurements of one body (dict); ``turn``: degrees the body is turned about the vertical
     before the scan (the cameras see it from another side)."""
-    from poses import load_body
-    from recon import ReconParams, estimate_posture, reconstruct
-    from recon.model import SECTIONS
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.poses import load_body
+    from bodyscan.recon import ReconParams, estimate_posture, reconstruct
+    from bodyscan.recon.model import SECTIONS
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     from . import metrics as M
     from .oracle import fit_from_body
@@ -100,7 +100,7 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
     out["acc"], out["any"] = acc["section_accuracy"], acc["section_accuracy_any"]
     from scipy.spatial import cKDTree
 
-    from recon.cluster import section_coordinates
+    from bodyscan.recon.cluster import section_coordinates
 
     p = np.asarray(s.points, dtype=float)
     widest = max(sh.width for sh in fit.sections.values())
@@ -161,11 +161,11 @@ def main(argv=None) -> int:
                         help="turn every body this many degrees about the vertical before the scan")
     parser.add_argument("--json", help="also write the rows to this JSON file")
     a = parser.parse_args(argv)
-    from poses.library import list_bodies
+    from bodyscan.poses.library import list_bodies
 
     bodies = a.bodies.split(",") if a.bodies else list_bodies()
     overrides = dict(kv.split("=", 1) for kv in a.param)
-    from recon import ReconError
+    from bodyscan.recon import ReconError
 
     rows, refused = [], []
     for name in bodies:

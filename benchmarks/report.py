@@ -349,7 +349,7 @@ def _at_defaults(doc, ok, metrics):
     if not swept:
         return
     try:
-        from recon import ReconParams
+        from bodyscan.recon import ReconParams
         defaults = ReconParams().to_dict()
     except ImportError:
         return

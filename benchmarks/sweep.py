@@ -67,7 +67,7 @@ from . import BenchError
 from .store import ResultStore
 
 #: The runner used when a sweep file names none.
-DEFAULT_RUNNER = "benchmarks.sweep"
+DEFAULT_RUNNER = "bodyscan.benchmarks.sweep"
 #: Results between two refreshes of the store's one-file table (reading parts costs milliseconds).
 COMPACT_EVERY = 100
 #: Top-level keys of a sweep file.
@@ -179,7 +179,7 @@ def load_sweep(path) -> Sweep:
     where = str(path)
     bodies = spec.get("bodies", "library")
     if bodies == "library":
-        from poses.library import list_bodies
+        from bodyscan.poses.library import list_bodies
         bodies = list_bodies()
         if not bodies:
             raise BenchError(f"{path}: bodies: library, but the pose library is empty")
@@ -713,8 +713,8 @@ class Scanned:
 
 def check(sweep: Sweep) -> None:
     """Check bodies, scanner settings, methods and reconstruction parameters before running."""
-    from poses.body import load_body
-    from recon import ReconParams
+    from bodyscan.poses.body import load_body
+    from bodyscan.recon import ReconParams
 
     from .bench import METHODS
     from .peers import PEERS, available_peers
@@ -743,9 +743,9 @@ def recon_free_methods() -> tuple:
 
 def scan(body: str, scanner: dict, seed: int) -> Scanned:
     """Default runner: load ``body``, simulate its scan, estimate its posture (default fit)."""
-    import simulator
-    from poses.body import load_body
-    from recon import ReconError, ReconParams
+    from bodyscan import simulator
+    from bodyscan.poses.body import load_body
+    from bodyscan.recon import ReconError, ReconParams
 
     loaded = load_body(body)
     started = time.perf_counter()
@@ -764,7 +764,7 @@ def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
     The row has bench's metrics and times (``time_fit_s`` is the shared fit's time, counted in
     full for each job), ``time_scan_s``, and ``_mesh`` for the report's pictures.
     """
-    from recon import ReconParams
+    from bodyscan.recon import ReconParams
 
     from .bench import RECON_METHODS
     from .bench import evaluate as bench_evaluate
@@ -782,8 +782,8 @@ def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
 
 def _fit_for(scanned: Scanned, params):
     """The posture for ``params.fit`` (estimated once per scan and worker), or its error."""
-    from recon import ReconError
-    from recon.pipeline import check_points, estimate_fit
+    from bodyscan.recon import ReconError
+    from bodyscan.recon.pipeline import check_points, estimate_fit
 
     key = repr(params.fit)
     if key not in scanned.fits:
@@ -801,7 +801,7 @@ def _fit_for(scanned: Scanned, params):
 
 
 def _scanner_config(setting: dict):
-    import simulator
+    from bodyscan import simulator
 
     setting = dict(setting)
     return simulator.preset(setting.pop("preset", "paper"), **setting)

@@ -17,7 +17,7 @@ The steps, each usable alone:
    the body follows where the joint lies inside the other, the arm's cross-section through the
    shoulder, the groin's crease at flexed hips).
 
-``python -m benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
+``python -m bodyscan.benchmarks.recon_table`` shows, per shipped posture, which section pairs are confused
 and which of these rules decided them.
 
 `cluster_points` chains them for ``method="proposed"`` or ``"simple"``. Memberships are ``(n, 11)``

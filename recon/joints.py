@@ -491,7 +491,7 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
 
     Estimated posture, 21 shipped bodies (`paper` scans): the neck's left-right error to the true
     neck joint 0.8 cm mean, 6.2 cm largest (leaning) -> 0.1, 0.3 cm; section accuracy (truth
-    among the labels, ``python -m benchmarks.recon_table --estimated``) leaning 0.944 -> 0.964,
+    among the labels, ``python -m bodyscan.benchmarks.recon_table --estimated``) leaning 0.944 -> 0.964,
     standing 0.963 -> 0.968, mean 0.960 -> 0.962, none more than 0.001 lower. Made before the
     joints are placed (`recon.posture`), so that the neck, shoulder and elbow joints follow: then
     leaning 0.967, and `benchmarks.fit_table` (84 runs, 10 mm) mean median joint error 2.39 ->

@@ -28,7 +28,7 @@ class ClusterParams:
         T_n = the cell histogram's maximum frequency times this factor (paper section 4.2; the
         factor is lost in the text). A cell is single-peaked, and kept whole, when more than T_n
         points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep
-        (``python -m benchmarks.perf_recon --sweep-tn --oracle``: paper scans of arms_close,
+        (``python -m bodyscan.benchmarks.perf_recon --sweep-tn --oracle``: paper scans of arms_close,
         hands_on_hips, arm_across, seated, squat and standing, oracle posture; means of section
         accuracy / spurious / bridging area fractions): 0 -> 0.916 / 0.057 / 0.0046,
         0.25 -> 0.916 / 0.057 / 0.0046, 0.5 -> 0.916 / 0.057 / 0.0043, 1 -> 0.923 / 0.057 /
@@ -37,7 +37,7 @@ class ClusterParams:
     refine_adjacent : bool
         Refinement may also split off points claimed by an adjacent section away from their
         joint (an arm against the chest below the shoulder); False: only non-adjacent sections.
-        Measured (21 shipped postures, oracle posture, ``python -m benchmarks.recon_table``):
+        Measured (21 shipped postures, oracle posture, ``python -m bodyscan.benchmarks.recon_table``):
         True gives mean bridging 0.88 % instead of 0.49 % (the hips' overlap, the crotch seam, is
         split off), 0.53 % when only points beside the proximal column count (heavy_standing 1.06
         -> 0.78 %, but standing 0.49 -> 0.84 %, heavy_a_pose 0.30 -> 0.90 %): kept False.
@@ -84,7 +84,7 @@ class ClusterParams:
         Joint rule: at a side joint whose joint lies beside the proximal column (the shoulders),
         the plane through the joint across the distal axis also votes (chosen; paper silent; see
         `recon.cluster.joint_plane_score`). Measured on the 21 shipped postures (oracle posture,
-        ``python -m benchmarks.recon_table``; mean truth among labels / mean and min 1/m-scored
+        ``python -m bodyscan.benchmarks.recon_table``; mean truth among labels / mean and min 1/m-scored
         accuracy): False 0.955 / 0.941 / 0.909, True 0.958 / 0.943 / 0.911, spurious 0.041 and
         bridging 0.47 % unchanged; at every side joint including the hips (whose joint lies
         beyond the waist's column) 0.951 / 0.939 / 0.916: the hips keep no plane. Its cost:
@@ -97,7 +97,7 @@ class ClusterParams:
         Three-or-more rule: a point that lies on a section's surface (nearer than this many of
         that section's widths) copies only from a neighbour that is also in that section
         (chosen; paper 3.2 says "the nearest point with fewer labels"; 0: the paper's rule).
-        Measured on the 21 shipped postures (`paper` scans, ``python -m benchmarks.recon_table``
+        Measured on the 21 shipped postures (`paper` scans, ``python -m bodyscan.benchmarks.recon_table``
         and the same fits with each value): oracle posture, heavy_standing, whose arms touch the
         chest below the shoulders, 0.940 -> 0.951 truth among labels, bridging 1.06 % -> 0.60 %,
         spurious 0.044 -> 0.036, the other postures within 0.001. Estimated posture (means):
@@ -114,7 +114,7 @@ class ClusterParams:
         section, the plane is the proximal section's cross-section, and vice versa (chosen; see
         `recon.cluster.joint_plane_score`: the spine bends at the chest joint, 0.46 widths above
         the chest section's lower end, and the body below the bend follows the waist). Measured on
-        the 21 shipped postures (oracle posture, ``python -m benchmarks.recon_table``; mean truth
+        the 21 shipped postures (oracle posture, ``python -m bodyscan.benchmarks.recon_table``; mean truth
         among labels / min 1/m-scored accuracy): always the mitre (inf, before) 0.952 / 0.895,
         0.05 -> 0.955 / 0.909, 0.1 -> 0.955 / 0.909, 0.3 -> 0.954 / 0.903; no posture worse,
         spurious and bridging unchanged (squat 0.910 -> 0.923, its waist>chest loss 3.1 -> 2.3 %).

@@ -145,7 +145,7 @@ def build_config(args):
 def _scan(args) -> int:
     import warnings
 
-    from poses import load_body
+    from bodyscan.poses import load_body
 
     from .cloud_io import write_cloud
     from .scan import scan

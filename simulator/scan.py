@@ -95,7 +95,7 @@ class _HeadRays:
 
 
 def _as_body(body):
-    from poses import Body, validate
+    from bodyscan.poses import Body, validate
 
     if not isinstance(body, Body):
         import trimesh

@@ -7,12 +7,12 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from benchmarks import BenchError
-from benchmarks.bench import METHODS, BenchConfig, evaluate, run_bench, score
-from benchmarks.cli import main
-from benchmarks.metrics import METRIC_NAMES, MetricParams
-from poses.body import load_body, save_body
-from poses.library import list_bodies
+from bodyscan.benchmarks import BenchError
+from bodyscan.benchmarks.bench import METHODS, BenchConfig, evaluate, run_bench, score
+from bodyscan.benchmarks.cli import main
+from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
+from bodyscan.poses.body import load_body, save_body
+from bodyscan.poses.library import list_bodies
 
 METRICS = MetricParams(n_samples=20_000)
 
@@ -91,14 +91,14 @@ def test_proposed_beats_simple_on_surface_in_the_air(bench_run):
 
 @pytest.fixture(scope="module")
 def standing_scan():
-    import simulator
+    from bodyscan import simulator
 
     body = load_body("standing")
     return body, simulator.scan(body, simulator.preset("paper", k=1), seed=0)
 
 
 def test_evaluate_takes_flat_params_and_scores_like_score(standing_scan):
-    import recon
+    from bodyscan import recon
 
     body, sc = standing_scan
     row = evaluate(body, sc, "simple", {"t_d": 0.25}, metric_params=METRICS)
@@ -119,7 +119,7 @@ def test_evaluate_takes_flat_params_and_scores_like_score(standing_scan):
 
 
 def test_peer_through_evaluate(standing_scan):
-    from benchmarks.peers import available_peers
+    from bodyscan.benchmarks.peers import available_peers
 
     if "bpa" not in available_peers():
         pytest.skip("open3d is not installed")
@@ -131,8 +131,8 @@ def test_peer_through_evaluate(standing_scan):
 
 
 def test_score_command_matches_score(standing_scan, tmp_path, capsys):
-    import recon
-    import simulator
+    from bodyscan import recon
+    from bodyscan import simulator
 
     body, sc = standing_scan
     rec = recon.reconstruct(sc.points, "proposed", view_dir=sc.view_dir)
@@ -167,11 +167,11 @@ def test_bench_rejects_bad_options():
 
 def test_reconstruct_command_runs_peers(standing_scan, tmp_path):
     """`bodyscan reconstruct --method bpa` writes a peer's mesh, which `bodyscan score` scores."""
-    from benchmarks.peers import available_peers
+    from bodyscan.benchmarks.peers import available_peers
 
     if "bpa" not in available_peers():
         pytest.skip("open3d is not installed")
-    import simulator
+    from bodyscan import simulator
 
     body, sc = standing_scan
     cloud = simulator.write_cloud(sc, tmp_path / "cloud.ply")

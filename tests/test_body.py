@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from poses import REQUIRED_JOINTS, SECTIONS, Body, BodyError, load_body, save_body
+from bodyscan.poses import REQUIRED_JOINTS, SECTIONS, Body, BodyError, load_body, save_body
 
 
 def _box_body(scale=1.0):
@@ -67,7 +67,7 @@ def test_garbage_and_unknown_names(tmp_path):
 
 
 def test_cli_reports_bad_body_in_one_line(tmp_path, capsys):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
     path = tmp_path / "junk.npz"
     path.write_bytes(b"not a zip")
     assert main(["scan", str(path), "--out", str(tmp_path / "c.ply")]) == 2

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from recon import ReconError, read_cloud
-from recon.cloud import Cloud
+from bodyscan.recon import ReconError, read_cloud
+from bodyscan.recon.cloud import Cloud
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -117,8 +117,8 @@ def test_recon_never_names_ground_truth_fields():
 
 
 def test_reads_a_simulator_scan(tmp_path):
-    simulator = pytest.importorskip("simulator")
-    poses = pytest.importorskip("poses")
+    simulator = pytest.importorskip("bodyscan.simulator")
+    poses = pytest.importorskip("bodyscan.poses")
     if "standing" not in poses.list_bodies():
         pytest.skip("no standing body shipped")
     with warnings.catch_warnings():

@@ -3,10 +3,10 @@
 import numpy as np
 import pytest
 
-from recon import ReconError
-from recon import cluster as C
-from recon.model import SECTIONS, BodyFit, SectionShape
-from recon.params import ClusterParams, ReconParams
+from bodyscan.recon import ReconError
+from bodyscan.recon import cluster as C
+from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
+from bodyscan.recon.params import ClusterParams, ReconParams
 
 X = np.array([1.0, 0, 0])
 I = {name: i for i, name in enumerate(SECTIONS)}

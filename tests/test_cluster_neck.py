@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from recon.joints import NECK_SLAB, centre_neck
-from recon.model import SectionShape
+from bodyscan.recon.joints import NECK_SLAB, centre_neck
+from bodyscan.recon.model import SectionShape
 
 
 def _col(name, start, end, radii, frame_x=(1.0, 0, 0)):

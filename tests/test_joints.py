@@ -6,10 +6,10 @@ import warnings
 import numpy as np
 import pytest
 
-from recon import estimate_posture
-from recon.bodymodel import SHOULDER_CAP, UPPER_ARM_SHAPE
-from recon.joints import joint_caps, shape_limbs
-from recon.model import SECTIONS, SectionShape
+from bodyscan.recon import estimate_posture
+from bodyscan.recon.bodymodel import SHOULDER_CAP, UPPER_ARM_SHAPE
+from bodyscan.recon.joints import joint_caps, shape_limbs
+from bodyscan.recon.model import SECTIONS, SectionShape
 
 X, Y, Z = np.eye(3)
 
@@ -61,10 +61,10 @@ def test_shoulder_cap_reaches_further_along_a_hanging_arm_than_a_raised_one():
 
 @pytest.fixture(scope="module")
 def limb_scans():
-    from benchmarks.oracle import fit_from_body
-    from poses import load_body
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.benchmarks.oracle import fit_from_body
+    from bodyscan.poses import load_body
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     out = {}
     for name in ("standing", "arms_close", "seated"):

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmarks import BenchError
-from benchmarks.metrics import (
+from bodyscan.benchmarks import BenchError
+from bodyscan.benchmarks.metrics import (
     GroundTruth, MetricParams, SurfaceIndex, closest_point_on_triangles, face_normals,
     joint_errors, sample_surface, score_mesh, section_accuracy,
 )
@@ -262,8 +262,8 @@ def test_empty_mesh_and_bad_input(sphere):
 
 @pytest.fixture(scope="module")
 def standing():
-    from poses.body import load_body
-    from poses.library import list_bodies
+    from bodyscan.poses.body import load_body
+    from bodyscan.poses.library import list_bodies
 
     if "standing" not in list_bodies():
         pytest.skip("the pose library has no standing body")
@@ -301,6 +301,6 @@ def test_planted_quad_in_the_standing_body_s_left_armpit(standing):
 
 
 def _section_of(truth, face):
-    from benchmarks.metrics import SECTIONS
+    from bodyscan.benchmarks.metrics import SECTIONS
 
     return SECTIONS[truth.face_section[face]]

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from recon.model import SECTIONS, SectionShape, section_coords
+from bodyscan.recon.model import SECTIONS, SectionShape, section_coords
 
 
 def _cyl(**kw):
@@ -62,13 +62,13 @@ def test_degenerate_section_is_rejected():
 
 
 def test_recon_sections_match_body_format():
-    import poses
+    from bodyscan import poses
     assert SECTIONS == poses.SECTIONS
 
 
 def test_bodyfit_json_roundtrip():
     import json
-    from recon.model import BodyFit, adjacency_matrix
+    from bodyscan.recon.model import BodyFit, adjacency_matrix
     fit = BodyFit(sections={"thigh_l": _cyl(closed=(True, False))}, joints={"hip_l": np.array([0.1, 0, 0.9])},
                   residuals={"thigh_l": 0.004}, unfitted=("head",))
     back = BodyFit.from_dict(json.loads(json.dumps(fit.to_dict())))

@@ -7,19 +7,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from benchmarks.fit_table import rot_z, score_fit
-from recon import FitParams, estimate_posture
-from recon.bodymodel import StandardBody
-from recon.model import SECTIONS, SectionShape
-from recon.posture import _on_trunk
+from bodyscan.benchmarks.fit_table import rot_z, score_fit
+from bodyscan.recon import FitParams, estimate_posture
+from bodyscan.recon.bodymodel import StandardBody
+from bodyscan.recon.model import SECTIONS, SectionShape
+from bodyscan.recon.posture import _on_trunk
 
 
 def _cut_scan(name, cut, turn=0.0):
     """The `paper` scan (10 mm, k = 1) of the library body ``name`` turned ``turn`` degrees before
     the scan, the points of the sections ``cut`` removed (ground-truth labels of the simulator);
     returns (points, true joints)."""
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     if name not in poses.list_bodies():
         pytest.skip(f"library body {name} not shipped")
@@ -85,7 +85,7 @@ def test_a_forearm_on_the_trunks_surface_is_not_an_arm(offset, on):
 def test_points_on_another_sections_surface_are_shared():
     """`recon.reach._shared_fraction`: a limb explains points no other section explains; points of
     the chest's surface under a forearm laid on it are shared, points around a free forearm are not."""
-    from recon.reach import _shared_fraction
+    from bodyscan.recon.reach import _shared_fraction
 
     body, secs = _trunk_and_arm(0.0)
     on_chest = secs["chest"].surface_points(48, 20)
@@ -145,7 +145,7 @@ def _head_and_chest(nose: bool):
 def test_the_trunk_says_where_the_front_is(turn):
     """`recon.joints.front_sign` without legs: the head and chest stick out in front (`_trunk_vote`);
     the body faces -y, and turned 180 degrees +y; symmetric sections give no vote."""
-    from recon.joints import _trunk_vote, front_sign
+    from bodyscan.recon.joints import _trunk_vote, front_sign
 
     pts, secs = _head_and_chest(nose=True)
     R = rot_z(turn)
@@ -173,7 +173,7 @@ def test_a_leg_chain_running_across_the_body_is_found(foot_x, across):
     """`recon.posture._leg_across`: hips at x = +-0.09 m, the left thigh straight down 0.42 m, the
     left sole at ``foot_x``: a chain ending 0.34 m toward the other hip over 0.92 m of length is more
     than `match_max_adduction` (0.25) across; a leg held in or out a little is not."""
-    from recon.posture import _leg_across
+    from bodyscan.recon.posture import _leg_across
 
     def col(name, a, b):
         return SectionShape(name, np.array(a, float), np.array(b, float), [0.06, 0.06], [1.0, 0, 0])

@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 import trimesh
 
-from benchmarks import BenchError
-from benchmarks import peers
-from benchmarks.metrics import GroundTruth, MetricParams, score_mesh
+from bodyscan.benchmarks import BenchError
+from bodyscan.benchmarks import peers
+from bodyscan.benchmarks.metrics import GroundTruth, MetricParams, score_mesh
 
 R = 0.3
 

@@ -5,9 +5,9 @@ import warnings
 import numpy as np
 import pytest
 
-from recon import ReconError, ReconParams, reconstruct
-from recon.model import SECTIONS, BodyFit, SectionShape
-from recon.surface import model_outward
+from bodyscan.recon import ReconError, ReconParams, reconstruct
+from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
+from bodyscan.recon.surface import model_outward
 
 X = np.array([1.0, 0, 0])
 ARMS = [SECTIONS.index(s) for s in ("upper_arm_l", "upper_arm_r", "forearm_l", "forearm_r")]
@@ -195,7 +195,7 @@ ARMPIT_CROTCH = [("chest", "upper_arm_l"), ("chest", "upper_arm_r"), ("waist", "
 
 def _shipped():
     try:
-        from poses.library import list_bodies
+        from bodyscan.poses.library import list_bodies
     except ImportError:
         return []
     return list_bodies()
@@ -210,11 +210,11 @@ def scored():
 def _score(name, cache):
     if name in cache:
         return cache[name]
-    from benchmarks import metrics as M
-    from benchmarks.oracle import fit_from_body
-    from poses import load_body
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.benchmarks import metrics as M
+    from bodyscan.benchmarks.oracle import fit_from_body
+    from bodyscan.poses import load_body
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     body = load_body(name)
     s = scan(body, preset("paper"))
@@ -230,7 +230,7 @@ def _score(name, cache):
 
 def _reconstruct_and_score(s, truth, fit, method, over=None):
     """Reconstruct scan ``s`` with ``fit`` and score it against ``truth`` (a dict)."""
-    from benchmarks import metrics as M
+    from bodyscan.benchmarks import metrics as M
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -262,7 +262,7 @@ BRIDGING_ABOVE = {"woman_standing": 0.007}
 
 #: Postures below the issue's 95 % "truth among labels", with their floor: none (the lowest,
 #: seated, measured 0.9503, loses most at the bent chest-waist joint and at the hips, joint rule,
-#: 0.5 % each; see ``python -m benchmarks.recon_table --bodies seated``).
+#: 0.5 % each; see ``python -m bodyscan.benchmarks.recon_table --bodies seated``).
 BELOW_95: dict = {}
 
 
@@ -298,11 +298,11 @@ def test_shipped_postures_on_average(scored):
 @pytest.fixture(scope="module")
 def estimated():
     """Per shipped posture: proposed and simple, posture estimated from the cloud (one fit shared)."""
-    from benchmarks import metrics as M
-    from poses import load_body
-    from recon import estimate_posture
-    from simulator.config import preset
-    from simulator.scan import scan
+    from bodyscan.benchmarks import metrics as M
+    from bodyscan.poses import load_body
+    from bodyscan.recon import estimate_posture
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
 
     out = {}
     for name in _shipped():
@@ -384,7 +384,7 @@ def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsules):
 
     import trimesh
 
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
 
     P, L, N, vd, fit, _ = capsules
     cloud = tmp_path / "cloud.ply"
@@ -403,7 +403,7 @@ def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsules):
 def test_cli_user_errors_are_one_line(tmp_path, capsys, capsules):
     import trimesh
 
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
 
     cloud = tmp_path / "cloud.ply"
     trimesh.PointCloud(capsules[0]).export(cloud)

@@ -8,8 +8,8 @@ import pytest
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from poses import REQUIRED_JOINTS, SECTIONS, Body, BodyError, list_bodies, load_body
-from poses.checks import ADJACENT, gaps, interpenetration
+from bodyscan.poses import REQUIRED_JOINTS, SECTIONS, Body, BodyError, list_bodies, load_body
+from bodyscan.poses.checks import ADJACENT, gaps, interpenetration
 
 BODIES = list_bodies()
 #: Bodies in an upright standing posture (arms down, facing -y).
@@ -32,7 +32,7 @@ def _components(n, edges):
 
 
 def test_library_is_complete_and_small():
-    from poses.library import DATA_DIR
+    from bodyscan.poses.library import DATA_DIR
     male = {"standing", "arms_close", "a_pose", "t_pose", "arms_raised", "arms_forward", "arm_across",
             "hands_on_hips", "walking", "squat", "seated", "leaning", "knee_raised"}
     assert male <= set(BODIES)
@@ -206,7 +206,7 @@ def test_gaps_where_parts_come_close():
 
 
 def test_stored_parameters_describe_the_body(body):
-    from poses.generate import GENERATOR_VERSION, load_posture, load_shape, shipped
+    from bodyscan.poses.generate import GENERATOR_VERSION, load_posture, load_shape, shipped
     entry = shipped()[body.name]
     posture = json.loads(str(body.extras["posture"]))
     shape = json.loads(str(body.extras["shape"]))
@@ -217,7 +217,7 @@ def test_stored_parameters_describe_the_body(body):
 
 
 def test_posture_specs(tmp_path):
-    from poses.generate import list_postures, load_posture
+    from bodyscan.poses.generate import list_postures, load_posture
     assert {"standing", "arms_close", "squat"} <= set(list_postures())
     p = load_posture("standing")
     assert p["bones"]["upperarm01.L"][1] == -p["bones"]["upperarm01.R"][1]  # mirrored
@@ -234,7 +234,7 @@ def test_posture_specs(tmp_path):
 
 
 def test_shape_specs(tmp_path):
-    from poses.generate import load_shape
+    from bodyscan.poses.generate import load_shape
     assert load_shape("average_male")["phenotype"]["gender"] == 0.0
     path = tmp_path / "odd.yaml"
     path.write_text("phenotype: {gender: 2}\n")
@@ -247,7 +247,7 @@ def test_shape_specs(tmp_path):
 
 def test_split_long_edges_keeps_a_closed_curved_surface():
     import trimesh
-    from poses.generate import refine
+    from bodyscan.poses.generate import refine
     sphere = trimesh.creation.icosphere(subdivisions=1, radius=0.1)
     v0, f0 = np.asarray(sphere.vertices), np.asarray(sphere.faces)
     attr = np.c_[v0[:, 0] > 0, v0[:, 0] <= 0].astype(float)
@@ -262,7 +262,7 @@ def test_split_long_edges_keeps_a_closed_curved_surface():
 
 
 def test_cli_show_writes_a_png(tmp_path):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
     out = tmp_path / "standing.png"
     assert main(["poses", "show", "standing", "--out", str(out)]) == 0
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -270,8 +270,8 @@ def test_cli_show_writes_a_png(tmp_path):
 
 
 def test_cli_generate_without_anny_says_so(tmp_path, monkeypatch, capsys):
-    import poses.generate as gen
-    from benchmarks.cli import main
+    import bodyscan.poses.generate as gen
+    from bodyscan.benchmarks.cli import main
     real_import = builtins.__import__
 
     def no_anny(name, *args, **kwargs):
@@ -290,7 +290,7 @@ def test_cli_generate_without_anny_says_so(tmp_path, monkeypatch, capsys):
 
 
 def test_cli_check(capsys):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
     assert main(["poses", "check", "arms_close"]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("arms_close"))
@@ -298,7 +298,7 @@ def test_cli_check(capsys):
 
 
 def test_cli_generate_bad_spec(tmp_path, capsys):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
     assert main(["poses", "generate", "--pose", "nope", "--out", str(tmp_path / "x.npz")]) == 2
     assert "no such posture" in capsys.readouterr().err
 
@@ -306,7 +306,7 @@ def test_cli_generate_bad_spec(tmp_path, capsys):
 def test_generator_reproduces_a_shipped_body():
     pytest.importorskip("torch", reason="the generator needs the 'bodies' extra (torch)")
     pytest.importorskip("anny", reason="the generator needs the 'bodies' extra (anny)")
-    from poses.generate import regenerate
+    from bodyscan.poses.generate import regenerate
     shipped = load_body("standing")
     again = regenerate(shipped)
     assert again.faces.shape == shipped.faces.shape

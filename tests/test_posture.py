@@ -8,10 +8,10 @@ import warnings
 import numpy as np
 import pytest
 
-from benchmarks.fit_table import rot_z as _rz
-from benchmarks.fit_table import score_fit as _scores
-from recon import FitParams, ReconError, estimate_posture, fit_section
-from recon.model import SECTIONS, SectionShape
+from bodyscan.benchmarks.fit_table import rot_z as _rz
+from bodyscan.benchmarks.fit_table import score_fit as _scores
+from bodyscan.recon import FitParams, ReconError, estimate_posture, fit_section
+from bodyscan.recon.model import SECTIONS, SectionShape
 
 
 # -- analytic ------------------------------------------------------------------------------------
@@ -89,7 +89,7 @@ def test_params_from_strings():
 def test_knee_closes_the_leg_triangle():
     """The knee from hip, ankle and the bend of the axes: exact on a bent leg, whichever way the
     hinge turns, and on a straight leg at the thigh's share of hip to ankle."""
-    from recon.joints import knee_between
+    from bodyscan.recon.joints import knee_between
 
     back, left = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
     hip = np.array([0.1, 0.0, 0.9])
@@ -114,9 +114,9 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     knee, as on the squat scans: bend 108 degrees) moves the triangle's knee (`knee_between`) 6.3 cm,
     the knee on the lower leg's axis, between where the thigh's axis crosses it and a shank above the
     ankle, 1.6 cm; `place_joints` uses it beyond `KNEE_MEET_DEG`."""
-    from recon.bodymodel import standard_body
-    from recon.geometry import unit
-    from recon.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
+    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.geometry import unit
+    from bodyscan.recon.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
 
     x = np.array([1.0, 0.0, 0.0])
     hip, knee, ankle = np.array([0.12, 0.0, 0.47]), np.array([0.17, -0.40, 0.44]), np.array([0.26, -0.15, 0.08])
@@ -149,8 +149,8 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
 def test_crown_anchor_keeps_a_level_thigh_on_its_line():
     """Sliding the model along the torso axis to hang from the crown moves a level thigh (seated,
     knee raised) only along itself: moved across itself it would leave its points."""
-    from recon.bodymodel import standard_body
-    from recon.adjust import anchor_on_head_top
+    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.adjust import anchor_on_head_top
 
     x = [1.0, 0.0, 0.0]
     secs = {
@@ -171,8 +171,8 @@ def test_doubted_forearm_is_found_again_on_the_points():
     """A forearm held across the chest, matched pointing down into the belly (its fit doubted: poor
     cover, 3 cm rms), is searched again from the elbow on the points: the new axis follows the true
     forearm; a forearm the check does not doubt is left alone."""
-    from recon.adjust import research_forearms
-    from recon.bodymodel import standard_body
+    from bodyscan.recon.adjust import research_forearms
+    from bodyscan.recon.bodymodel import standard_body
 
     body = standard_body(1.75)
     x = [1.0, 0.0, 0.0]
@@ -201,8 +201,8 @@ def test_doubted_forearm_is_found_again_on_the_points():
 
 # -- shipped postures ------------------------------------------------------------------------------
 def _library():
-    poses = pytest.importorskip("poses")
-    pytest.importorskip("simulator")
+    poses = pytest.importorskip("bodyscan.poses")
+    pytest.importorskip("bodyscan.simulator")
     names = poses.list_bodies()
     if not names:
         pytest.skip("no shipped bodies")
@@ -212,8 +212,8 @@ def _library():
 @pytest.fixture(scope="module")
 def standing_scans():
     _library()
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     body = poses.load_body("standing")
     with warnings.catch_warnings():
@@ -264,8 +264,8 @@ def test_other_postures_and_sizes(name):
     names = _library()
     if name not in names:
         pytest.skip(f"{name} not shipped")
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     body = poses.load_body(name)
     with warnings.catch_warnings():
@@ -284,8 +284,8 @@ def test_seated_scanned_at_2mm_is_fitted():
     names = _library()
     if "seated" not in names:
         pytest.skip("seated not shipped")
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     body = poses.load_body("seated")
     with warnings.catch_warnings():
@@ -303,8 +303,8 @@ def _scan_and_fit(name, k=1):
     names = _library()
     if name not in names:
         pytest.skip(f"{name} not shipped")
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     body = poses.load_body(name)
     with warnings.catch_warnings():
@@ -389,7 +389,7 @@ def test_facing_frame_turns_the_shoulders_across_and_the_front_to_minus_y():
     """An analytic body: a torso column 0.40 m wide, 0.24 m deep, shoulders a 0.50 m wide slab,
     and a block in front (feet, arms forward) at +x turned by 40 degrees: the frame turns the wide
     direction to x and the front to -y, from any starting turn; R is a rotation about +z."""
-    from recon.posture import facing_frame
+    from bodyscan.recon.posture import facing_frame
 
     def box(x, y, z, n):   # a grid filling [x0, x1] x [y0, y1] x [z0, z1], symmetric about its centre
         return np.stack(np.meshgrid(*(np.linspace(*r, m) for r, m in zip((x, y, z), n))), -1).reshape(-1, 3)
@@ -410,7 +410,7 @@ def test_facing_frame_turns_the_shoulders_across_and_the_front_to_minus_y():
 
 def test_body_fit_moves_rigidly():
     """`BodyFit.moved`: joints and sections carried by p -> R p + t, lengths and radii kept."""
-    from recon.model import BodyFit
+    from bodyscan.recon.model import BodyFit
 
     s = SectionShape("thigh_l", np.array([0.1, 0.0, 0.9]), np.array([0.1, -0.1, 0.5]), np.array([0.07, 0.07]),
                      np.array([1.0, 0.0, 0.0]))
@@ -427,8 +427,8 @@ def test_body_fit_moves_rigidly():
 
 def test_a_missing_forearm_is_listed_unfitted(standing_scans):
     """A partial body: the left forearm cut from the scan (ground-truth labels of the simulator)."""
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -441,15 +441,15 @@ def test_a_missing_forearm_is_listed_unfitted(standing_scans):
 
 
 def test_cli_writes_fit_json_and_preview(tmp_path, standing_scans):
-    import simulator
-    import poses
+    from bodyscan import simulator
+    from bodyscan import poses
 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(poses.load_body("standing"), simulator.preset("paper"))
     cloud = simulator.write_cloud(scan, tmp_path / "s.ply")
     out, png = tmp_path / "fit.json", tmp_path / "fit.png"
-    r = subprocess.run([sys.executable, "-m", "benchmarks.cli", "fit", str(cloud), "--out", str(out),
+    r = subprocess.run([sys.executable, "-m", "bodyscan.benchmarks.cli", "fit", str(cloud), "--out", str(out),
                         "--preview", str(png)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     d = json.loads(out.read_text())
@@ -458,7 +458,7 @@ def test_cli_writes_fit_json_and_preview(tmp_path, standing_scans):
     assert png.stat().st_size > 10000
     bad = tmp_path / "bad.xyz"
     np.savetxt(bad, np.zeros((20, 3)))
-    r = subprocess.run([sys.executable, "-m", "benchmarks.cli", "fit", str(bad), "--out", str(out)],
+    r = subprocess.run([sys.executable, "-m", "bodyscan.benchmarks.cli", "fit", str(bad), "--out", str(out)],
                        capture_output=True, text=True)
     assert r.returncode == 2 and len(r.stderr.strip().splitlines()) == 1
 
@@ -469,8 +469,8 @@ def _fit_or_refuse(name, resolution, k, rot=0.0):
     names = _library()
     if name not in names:
         pytest.skip(f"{name} not shipped")
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     body = poses.load_body(name)
     R = _rz(rot)
@@ -523,7 +523,7 @@ def test_standing_at_20mm_meets_the_issue_targets(k):
 def _seated_chain(H, pelvis, thigh_dir):
     """Sections of a body of stature ``H`` sat with its torso upright: head, thighs along
     ``thigh_dir``, shins down (the model's proportions), arms hanging; its pelvis at ``pelvis``."""
-    from recon.bodymodel import standard_body
+    from bodyscan.recon.bodymodel import standard_body
 
     b = standard_body(H)
     x, up, down = np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), np.array([0, 0, -1.0])
@@ -549,7 +549,7 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
     1.75 m body, standing or seated (thighs level, knees bent 90 degrees): on a bent knee the
     model's thigh, not the points, sets where the shin hangs, so its length is not measured and is
     taken out of the ratio (uncorrected, a seated 1.75 m body measured 1.67 m from a 1.50 m match)."""
-    from recon.match import Pose, size_ratios, torso_len
+    from bodyscan.recon.match import Pose, size_ratios, torso_len
 
     d = np.array(thigh)
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), d)
@@ -565,7 +565,7 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
 def test_a_hand_over_the_head_is_not_the_crown():
     """A forearm raised over the head (its hand in line with the head's axis) does not lengthen the
     crown to sole measure: points nearer a placed forearm than the head are not the crown."""
-    from recon.match import Pose, size_ratios, torso_len
+    from bodyscan.recon.match import Pose, size_ratios, torso_len
 
     down = np.array([0.0, 0.0, -1.0])
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), down)
@@ -582,7 +582,7 @@ def test_a_hand_over_the_head_is_not_the_crown():
 def test_a_head_in_the_scan_is_seen_above_the_neck():
     """`_head_seen`: a head's surface points above the chest's top end are seen; with the head cut
     from the scan, or with the chest placed a head length too high (its top above the crown), none."""
-    from recon.posture import _head_seen
+    from bodyscan.recon.posture import _head_seen
 
     body, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0]))
     up = np.array([0.0, 0.0, 1.0])
@@ -601,7 +601,7 @@ def test_the_crown_on_the_trunk_axis_of_a_torso_placed_too_high(off):
     """`_crown_on_trunk`: with the chest placed 0.15 m too high (its head would lean into the air),
     the crown found on the trunk's axis says how far down the neck belongs (within 1 cm), also with
     the head carried ``off`` metres forward of that axis; with no head in the scan, None."""
-    from recon.match import _crown_on_trunk
+    from bodyscan.recon.match import _crown_on_trunk
 
     body, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0]))
     up = np.array([0.0, 0.0, 1.0])
@@ -622,7 +622,7 @@ def test_elbow_between_closes_the_arm_at_the_bone_proportion(bend):
     """`elbow_between`: an arm of upper arm 0.27 m and forearm 0.25 m bent ``bend`` degrees, from
     its shoulder and wrist and the two bones' directions, gives back its elbow (within 1 mm), at any
     overall size (the model's lengths are not used, only their proportion)."""
-    from recon.joints import elbow_between
+    from bodyscan.recon.joints import elbow_between
 
     for scale in (0.8, 1.0):
         u, f = 0.27 * scale, 0.25 * scale
@@ -639,8 +639,8 @@ def test_elbow_between_closes_the_arm_at_the_bone_proportion(bend):
 def test_a_torso_deeper_than_wide_is_not_a_fit():
     """A waist deeper than wide means the fit took the body's front for its side (a walker's stride
     read as legs spread apart): the candidate is rejected, so another is tried or the cloud refused."""
-    from recon.bodymodel import standard_body
-    from recon.posture import _check_plausible
+    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.posture import _check_plausible
 
     x = np.array([1.0, 0, 0])
     chest = SectionShape("chest", np.array([0, 0, 1.3]), np.array([0, 0, 1.6]), np.array([0.16, 0.11]), x)
@@ -656,8 +656,8 @@ def test_a_torso_deeper_than_wide_is_not_a_fit():
 def test_a_leg_far_longer_than_the_body_size_is_not_a_fit():
     """The sole (the farthest points along the shin) 1.9 standard shanks below the knee: the body's size
     was misjudged; at the standard length the fit stands."""
-    from recon.bodymodel import standard_body
-    from recon.posture import _check_leg_length
+    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.posture import _check_leg_length
 
     body = standard_body(1.75)
     knee = np.array([0.1, 0, 0.5])
@@ -679,13 +679,13 @@ def test_a_tilted_winner_brings_back_the_best_upright_torso_when_resized():
     matched again at the new size; an upright winner brings back nothing."""
     from types import SimpleNamespace as NS
 
-    from benchmarks.fit_table import rot_z
+    from bodyscan.benchmarks.fit_table import rot_z
 
     def tilt(deg):   # torso frame turned ``deg`` about x: its axis (third column) leaves +z
         a = np.radians(deg)
         return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]) @ rot_z(30)
 
-    from recon.match import upright_restart
+    from bodyscan.recon.match import upright_restart
 
     tilted = NS(R=tilt(22), explained=0.58)
     up_a, up_b = NS(R=tilt(3), explained=0.46), NS(R=tilt(4.9), explained=0.48)
@@ -700,7 +700,7 @@ def test_a_roll_from_the_legs_needs_a_waist_wider_than_deep():
     0.26 m wide and 0.30 deep (refused before the rule); the right roll 0.32 x 0.28."""
     from types import SimpleNamespace as NS
 
-    from recon.match import waist_wider_than_deep
+    from bodyscan.recon.match import waist_wider_than_deep
 
     def waist(wide, deep):
         return NS(radii=np.array([wide, deep]))
@@ -715,8 +715,8 @@ def library_table():
     names = _library()
     if not names:
         pytest.skip("no shipped postures")
-    import poses
-    from benchmarks.fit_table import CONDITIONS, run_one
+    from bodyscan import poses
+    from bodyscan.benchmarks.fit_table import CONDITIONS, run_one
 
     return [dict(run_one(poses.load_body(n), c, 0.01), body=n) for n in names for c in CONDITIONS]
 
@@ -727,9 +727,9 @@ def test_a_section_pointed_at_the_cameras_is_missing_from_the_scan_and_others_ar
     is what the issue allows, while listing a forearm of the standing scan is a miss."""
     if not {"standing", "arms_forward"} <= set(_library()):
         pytest.skip("library postures missing")
-    import poses
-    import simulator
-    from benchmarks.fit_table import SEEN, outcome, seen_fractions
+    from bodyscan import poses
+    from bodyscan import simulator
+    from bodyscan.benchmarks.fit_table import SEEN, outcome, seen_fractions
 
     seen = {}
     for name in ("standing", "arms_forward"):
@@ -753,11 +753,11 @@ def test_an_arm_over_the_knee_is_placed_before_the_leg_takes_it():
     their bones (measured 2.2 and 8.9 degrees; elbow 4.3 cm off) and every joint given meets the
     targets (left leg listed: the scan misses it). The case arises with the scan fitted as it lies
     (`fit_facing` = 0); the default facing meets the targets too."""
-    from benchmarks.fit_table import run_one
+    from bodyscan.benchmarks.fit_table import run_one
 
     if "squat" not in _library():
         pytest.skip("library postures missing")
-    import poses
+    from bodyscan import poses
 
     body = poses.load_body("squat")
     for params in (FitParams(fit_facing=0), FitParams()):
@@ -774,13 +774,13 @@ def test_a_body_turned_in_the_scanner_is_fitted_in_the_facing_that_explains_it()
     joint error 16.6 cm, nothing listed, no error: a silent wrong fit; its sections explained 0.58
     of the points). The reverse facing explains 0.69 and is kept; its joints meet the targets, and
     the kept fit explains at least as many points as the facing's own."""
-    from benchmarks.fit_table import run_one, score_fit, turned_body
+    from bodyscan.benchmarks.fit_table import run_one, score_fit, turned_body
 
     if "heavy_standing" not in _library():
         pytest.skip("library postures missing")
-    import poses
-    import simulator
-    from recon.match import explained_fraction
+    from bodyscan import poses
+    from bodyscan import simulator
+    from bodyscan.recon.match import explained_fraction
 
     row = run_one(poses.load_body("heavy_standing"), "k1_turn30", 0.01)
     assert row["outcome"] == "pass", row
@@ -817,11 +817,11 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     """tall_walking (1.97 m) at k = 3: its first match's hips sat high, the legs measured 2.18 m and
     crown to sole 2.02 m, 0.086 apart (under `match_size_disagree`): sized by the legs alone it missed
     the targets (hip 11.1 cm off); matched at both sizes, the one explaining more points is 2.02 m."""
-    from benchmarks.fit_table import run_one
+    from bodyscan.benchmarks.fit_table import run_one
 
     if "tall_walking" not in _library():
         pytest.skip("library postures missing")
-    import poses
+    from bodyscan import poses
 
     body = poses.load_body("tall_walking")
     after = run_one(body, "k3", 0.01, FitParams())
@@ -837,11 +837,11 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
     (k = 2); matched at the larger size (`match_size_both`), or sized from the trunk with the lower
     legs listed (`match_leg_trunk_min`), the fit listed a lower leg the scan shows (k = 1) or missed
     the targets (k = 2, elbow 10.1 cm). Both rules hold for adult sizes and both legs only."""
-    from benchmarks.fit_table import run_one
+    from bodyscan.benchmarks.fit_table import run_one
 
     if "child_arms_raised" not in _library():
         pytest.skip("library postures missing")
-    import poses
+    from bodyscan import poses
 
     row = run_one(poses.load_body("child_arms_raised"), f"k{k}", 0.02, FitParams())
     assert row["outcome"] == "pass", row
@@ -872,7 +872,7 @@ def _crotch_scene(crotch_z=0.80, spacing=0.01):
 
 def test_find_crotch_between_legs_apart():
     """The crotch is the lowest point of the mid-plane strip between the legs: the torso's bottom."""
-    from recon.joints import find_crotch
+    from bodyscan.recon.joints import find_crotch
 
     points, secs = _crotch_scene(0.80)
     c = find_crotch(points, secs)
@@ -882,8 +882,8 @@ def test_find_crotch_between_legs_apart():
 def test_split_hips_lowers_thighs_to_the_crotch():
     """Thighs fitted 15 cm above the crotch start CROTCH_SPLIT thigh lengths above it; a thigh
     already starting lower, and flexed hips (no crotch sought along the thighs), are left alone."""
-    from recon.bodymodel import CROTCH_SPLIT
-    from recon.joints import split_hips
+    from bodyscan.recon.bodymodel import CROTCH_SPLIT
+    from bodyscan.recon.joints import split_hips
 
     points, secs = _crotch_scene(0.80)
     out = split_hips(points, secs)
@@ -912,8 +912,8 @@ def test_split_torso_cuts_from_the_crotch_seen_or_along_the_column():
     """The reported waist and chest meet TORSO_SPLIT_CROTCH of the way from the crotch seen in the
     points to the chest joint; without a crotch (hips flexed) at TORSO_SPLIT of the waist column;
     within TORSO_SPLIT_RANGE of the column always. The chest keeps its top, the waist its bottom."""
-    from recon.bodymodel import TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE
-    from recon.joints import split_torso
+    from bodyscan.recon.bodymodel import TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE
+    from bodyscan.recon.joints import split_torso
 
     points, secs = _torso_scene()
     out = split_torso(points, secs)
@@ -934,8 +934,8 @@ def test_standing_waist_and_chest_meet_where_the_labels_change(standing_fits, ca
     column, of the plane across it that best separates the body's waist and chest vertices (cut at
     0.625 of the column from the fitted pelvis: -3.0, -2.9, -1.2 cm; from the crotch: -1.2, -1.0,
     +0.8 cm)."""
-    import poses
-    from benchmarks.fit_table import rot_z
+    from bodyscan import poses
+    from bodyscan.benchmarks.fit_table import rot_z
 
     fit, _ = standing_fits[case]
     body = poses.load_body("standing")
@@ -956,7 +956,7 @@ def test_a_forearm_through_the_head_is_inside_another_section():
     """`_inside_others`: a forearm whose axis runs into the head counts as inside another section
     (the re-search drops it); the same forearm held a forearm radius beside the head, or any
     section tested against itself only, does not."""
-    from recon.adjust import _inside_others
+    from bodyscan.recon.adjust import _inside_others
 
     x = np.array([1.0, 0, 0])
     head = SectionShape("head", [0, 0, 1.5], [0, 0, 1.75], [0.08, 0.08], x)

@@ -5,10 +5,10 @@ import warnings
 import numpy as np
 import pytest
 
-from recon import FitParams, estimate_posture
-from recon.bodymodel import standard_body
-from recon.model import SECTIONS, SectionShape
-from recon.reach import reach_arms
+from bodyscan.recon import FitParams, estimate_posture
+from bodyscan.recon.bodymodel import standard_body
+from bodyscan.recon.model import SECTIONS, SectionShape
+from bodyscan.recon.reach import reach_arms
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -93,8 +93,8 @@ def test_an_arm_cut_at_the_elbow_is_not_completed():
 
 
 def _arms_forward_scan():
-    import poses
-    import simulator
+    from bodyscan import poses
+    from bodyscan import simulator
 
     if "arms_forward" not in poses.list_bodies():
         pytest.skip("arms_forward not shipped")
@@ -107,7 +107,7 @@ def _arms_forward_scan():
 def test_arms_forward_is_fitted_with_its_arms():
     """The shipped arms_forward scan (paper, 10 mm, k = 1): both arms fitted, each limb section within
     20 degrees of its bone (issue 4); before `recon.reach` three arm sections were listed."""
-    from benchmarks.fit_table import score_fit
+    from bodyscan.benchmarks.fit_table import score_fit
 
     body, scan = _arms_forward_scan()
     with warnings.catch_warnings():

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from PIL import Image
 
-from benchmarks import render
+from bodyscan.benchmarks import render
 
 RED, GREEN, BLUE = (1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0)
 SIZE = 160  # pixels per view: small and fast
@@ -148,7 +148,7 @@ def test_fallback_with_an_unusable_gl_platform_in_a_fresh_process(tmp_path):
     # a real failure: a platform that needs a display, and no display
     script = textwrap.dedent(f"""
         import numpy as np, trimesh
-        from benchmarks import render
+        from bodyscan.benchmarks import render
         m = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
         render.render_mesh(m.vertices, m.faces, np.full((12, 3), 0.5), {str(tmp_path / 'x.png')!r},
                            size=(64, 64))

@@ -5,6 +5,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -25,13 +27,36 @@ def test_top_level_layout():
         assert (ROOT / name).exists(), name
 
 
-def test_recon_imports_nothing_upstream():
-    pattern = re.compile(r"^\s*(from|import)\s+(poses|simulator|benchmarks)\b", re.M)
-    offenders = [str(p) for p in (ROOT / "recon").rglob("*.py") if pattern.search(p.read_text())]
+#: Each stage and the stages it must not import (data flows poses -> simulator -> recon -> benchmarks).
+UPSTREAM_FREE = {"poses": ("simulator", "recon", "benchmarks"), "simulator": ("recon", "benchmarks"),
+                 "recon": ("poses", "simulator", "benchmarks")}
+
+
+@pytest.mark.parametrize("stage", sorted(UPSTREAM_FREE))
+def test_stages_import_nothing_downstream_or_sideways(stage):
+    names = "|".join(UPSTREAM_FREE[stage])
+    pattern = re.compile(rf"^\s*(from|import)\s+(bodyscan\.)?({names})\b", re.M)
+    offenders = [str(p) for p in (ROOT / stage).rglob("*.py") if pattern.search(p.read_text())]
     assert offenders == []
 
 
+def test_everything_imports_through_the_bodyscan_namespace():
+    pattern = re.compile(r"^\s*(from|import)\s+(poses|simulator|recon|benchmarks)\b", re.M)
+    files = [p for d in ("poses", "simulator", "recon", "benchmarks", "tests", "bodyscan")
+             for p in (ROOT / d).rglob("*.py")]
+    assert [str(p) for p in files if pattern.search(p.read_text())] == []
+
+
+def test_no_generic_top_level_module_is_installed(tmp_path):
+    code = ("import importlib.util, bodyscan; "
+            "print([m for m in ('recon', 'simulator', 'poses', 'benchmarks') if importlib.util.find_spec(m)]); "
+            "print(callable(bodyscan.scan), callable(bodyscan.reconstruct), callable(bodyscan.score))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True,
+                         cwd=tmp_path).stdout.split("\n")
+    assert out[:2] == ["[]", "True True True"]
+
+
 def test_help_explains_every_command():
-    out = subprocess.run([sys.executable, "-m", "benchmarks.cli", "--help"], capture_output=True,
+    out = subprocess.run([sys.executable, "-m", "bodyscan.benchmarks.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
     assert "poses" in out

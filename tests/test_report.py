@@ -17,10 +17,10 @@ import pytest
 import trimesh
 from PIL import Image
 
-from benchmarks import report
-from benchmarks.cli import main as bodyscan
-from benchmarks.store import ResultStore
-from benchmarks.sweep import Job
+from bodyscan.benchmarks import report
+from bodyscan.benchmarks.cli import main as bodyscan
+from bodyscan.benchmarks.store import ResultStore
+from bodyscan.benchmarks.sweep import Job
 
 BODIES = ("standing", "t_pose")
 METHODS = ("proposed", "simple")   # with the grid of recon parameters

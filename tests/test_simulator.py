@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 import trimesh
 
-import simulator
-from poses import BodyError, load_body, save_body
-from simulator import Head, ScanError, Scanner, ScanWarning, preset, read_scan, scan, write_cloud
+from bodyscan import simulator
+from bodyscan.poses import BodyError, load_body, save_body
+from bodyscan.simulator import Head, ScanError, Scanner, ScanWarning, preset, read_scan, scan, write_cloud
 
 FRONT = (Head("front", 0.0),)
 
@@ -408,7 +408,7 @@ def test_bad_meshes_give_clear_errors(sphere):
 
 
 def _run(argv):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
     return main(argv)
 
 

@@ -8,7 +8,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 import pytest
 
-from benchmarks.store import ResultStore
+from bodyscan.benchmarks.store import ResultStore
 
 
 def test_rows_round_trip_with_the_union_of_columns(tmp_path):

@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 import yaml
 
-from benchmarks import BenchError
-from benchmarks.store import ResultStore
-from benchmarks.sweep import expand_grid, load_sweep, run_sweep
+from bodyscan.benchmarks import BenchError
+from bodyscan.benchmarks.store import ResultStore
+from bodyscan.benchmarks.sweep import expand_grid, load_sweep, run_sweep
 
 TOY_RUNNER = textwrap.dedent('''
     """A toy runner: metrics are known functions of the parameters; a scan log counts scans."""
@@ -191,7 +191,7 @@ def test_restart_skips_finished_jobs_and_retry_reruns_failures(tmp_path, toy):
 
 
 def _bodyscan(*args):
-    return [sys.executable, "-m", "benchmarks.cli", *args]
+    return [sys.executable, "-m", "bodyscan.benchmarks.cli", *args]
 
 
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM])
@@ -260,7 +260,7 @@ def test_a_dying_worker_stops_the_sweep_and_the_rerun_goes_past_it(tmp_path, toy
 
 
 def test_dry_run_counts_and_runs_nothing(tmp_path, toy, capsys):
-    from benchmarks.cli import main
+    from bodyscan.benchmarks.cli import main
 
     path = write_sweep(tmp_path / "s.yaml", seeds=[0, 1])
     assert main(["sweep", str(path), "--out", str(tmp_path / "o"), "--dry-run"]) == 0
@@ -347,7 +347,7 @@ def test_sweep_on_a_dask_cluster(tmp_path, dask_cluster):
 # -- the default runner: simulator, recon, metrics ----------------------------------------------
 
 def test_default_runner_on_the_standing_body(tmp_path):
-    from poses.library import list_bodies
+    from bodyscan.poses.library import list_bodies
 
     if "standing" not in list_bodies():
         pytest.fail("the shipped library has no 'standing' body")
@@ -373,7 +373,7 @@ def test_default_runner_on_the_standing_body(tmp_path):
     assert kept == worst.job_id
     mesh = store.get_mesh(kept)
     assert mesh["faces"].max() < len(mesh["vertices"]) and len(mesh["spurious"]) == len(mesh["faces"])
-    from poses.body import load_body
+    from bodyscan.poses.body import load_body
     joints = load_body("standing").joint_dict()
     center, radius = mesh["closeups"]["armpit_l"]
     assert np.linalg.norm(center - joints["shoulder_l"]) < radius
@@ -382,7 +382,7 @@ def test_default_runner_on_the_standing_body(tmp_path):
 
 
 def test_shipped_sweep_files():
-    from benchmarks.sweep_cli import SWEEPS_DIR
+    from bodyscan.benchmarks.sweep_cli import SWEEPS_DIR
 
     paper = load_sweep(SWEEPS_DIR / "paper.yaml")
     jobs = paper.jobs()
