@@ -662,9 +662,13 @@ def _resolve_body(body: str, base: Path) -> str:
     return body   # the runner's check reports it
 
 
+#: Runner names of stores written before the bodyscan namespace, still resumable.
+_OLD_RUNNERS = {"benchmarks.sweep": DEFAULT_RUNNER}
+
+
 def _runner(name: str, where: str = "sweep"):
     try:
-        return importlib.import_module(name)
+        return importlib.import_module(_OLD_RUNNERS.get(name, name))
     except ImportError as exc:
         raise BenchError(f"{where}: runner {name!r} cannot be imported ({exc})") from None
 
