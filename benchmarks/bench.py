@@ -485,7 +485,10 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     config = (config or BenchConfig()).resolved()
     if jobs < 1:
         raise BenchError(f"jobs must be at least 1, got {jobs}")
-    out = Path(out) if out is not None else Path("reports") / run_id()
+    from bodyscan._io import check_out
+
+    out = check_out(Path(out) if out is not None else Path("reports") / run_id(), folder=True,
+                    error=BenchError)
     out.mkdir(parents=True, exist_ok=True)
     n_cases = len(config.bodies) * len(config.presets) * len(config.ks) * len(config.methods)
     _log(f"bodyscan bench: {len(config.bodies)} posture(s) x {len(config.presets)} preset(s) x "
@@ -519,11 +522,13 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     rows = [r for r, _ in pairs]
     meshes = {r["method"]: m for r, m in pairs if m is not None}
     table = pd.DataFrame(rows)
-    table.to_parquet(out / "results.parquet", index=False)
+    from bodyscan._io import atomic_write, write_json, write_text
+
+    atomic_write(out / "results.parquet", lambda tmp: table.to_parquet(tmp, index=False))
     summary = summary_table(table)
-    (out / "run.json").write_text(json.dumps(run_metadata(config, started, jobs), indent=2, default=str))
+    write_json(out / "run.json", run_metadata(config, started, jobs), indent=2)
     pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
-    (out / "report.md").write_text(report_markdown(table, config, summary, pictures, picture_case))
+    write_text(out / "report.md", report_markdown(table, config, summary, pictures, picture_case))
     _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
          f"report.md, run.json" + (f" and pictures of {len(pictures)} method(s) in img/" if pictures else ""),
          progress)

@@ -120,15 +120,14 @@ def reconstruct_peer_command(args) -> int:
     for option in ("param", "fit", "preview"):
         if getattr(args, option, None):
             raise BenchError(f"--{option} is for the proposed and simple methods, not {args.method}")
-    out = Path(args.out)
-    if out.suffix.lower() != ".ply":
-        raise BenchError(f"--out {out}: the mesh is written as PLY; name it *.ply")
-    if not out.parent.exists():
-        raise BenchError(f"--out {out}: folder {out.parent} does not exist")
+    from bodyscan._io import atomic_write, check_out
+
+    out = check_out(args.out, suffixes=(".ply",), error=BenchError)
     cloud = read_cloud(args.cloud)
     print(f"reconstruct: {len(cloud.points)} points, method {args.method}", file=sys.stderr)
     v, f, times = reconstruct_peer(args.method, cloud.points, cloud.view_dir)
-    trimesh.Trimesh(v, f, process=False).export(out)
+    mesh = trimesh.Trimesh(v, f, process=False)
+    atomic_write(out, lambda tmp: mesh.export(tmp, file_type="ply"), error=BenchError)
     t = ", ".join(f"{k} {x:.2f} s" for k, x in times.items())
     print(f"reconstruct: {len(f)} triangles -> {out} ({t})", file=sys.stderr)
     return 0
@@ -166,6 +165,12 @@ def _metric_params(items):
 def bench_command(args) -> int:
     from .bench import RECON_METHODS, BenchConfig, run_bench
 
+    from bodyscan._io import check_out
+
+    from . import BenchError
+
+    if args.out:
+        check_out(args.out, folder=True, error=BenchError)
     methods = args.methods or (RECON_METHODS if args.no_peers else ())
     config = BenchConfig(bodies=args.bodies, presets=args.presets, ks=tuple(_k(k) for k in args.ks),
                          methods=methods, recon=_pairs(args.param, "--param"),
@@ -230,6 +235,10 @@ def score_command(args) -> int:
     from . import BenchError
     from .bench import score
 
+    from bodyscan._io import check_out
+
+    if args.out:
+        check_out(args.out, error=BenchError)
     vertices, faces, mesh = _load_mesh(args.mesh)
     body = load_body(args.body)
     body.require_ground_truth("scoring")
@@ -260,11 +269,11 @@ def score_command(args) -> int:
     row = {"mesh": str(args.mesh), "body": body.name, "cloud": args.cloud, **row}
     if scan is not None:
         row["matched_vertex_fraction"] = float(np.mean(point_index >= 0))
-    text = json.dumps(row, indent=1, default=float)
+    from bodyscan._io import dumps, write_text
+
+    text = dumps(row, indent=1)
     if args.out:
-        out = Path(args.out)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_text(text + "\n")
+        out = write_text(args.out, text + "\n", error=BenchError)
         print(f"bodyscan score: wrote {out}", file=sys.stderr)
     else:
         print(text)

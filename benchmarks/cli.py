@@ -11,6 +11,7 @@ import argparse
 import importlib
 import os
 import sys
+import warnings
 
 #: Modules whose ``register(subparsers)`` adds subcommands, in the order of ``--help``.
 COMMAND_MODULES = (
@@ -24,8 +25,10 @@ COMMAND_MODULES = (
 
 def _user_errors() -> tuple[type[BaseException], ...]:
     """Exception types that mean "the user asked for something wrong": one line, exit code 2."""
-    errors: list[type[BaseException]] = [FileNotFoundError, IsADirectoryError, PermissionError]
-    for module, name in (("bodyscan.poses", "BodyError"), ("bodyscan.simulator", "ScanError"),
+    errors: list[type[BaseException]] = [FileNotFoundError, IsADirectoryError, PermissionError,
+                                         NotADirectoryError]
+    for module, name in (("bodyscan._io", "OutputError"), ("bodyscan._resources", "ResourceError"),
+                         ("bodyscan.poses", "BodyError"), ("bodyscan.simulator", "ScanError"),
                          ("bodyscan.recon", "ReconError"), ("bodyscan.benchmarks", "BenchError")):
         try:
             errors.append(getattr(importlib.import_module(module), name))
@@ -48,20 +51,51 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _split_debug(argv: list[str]) -> tuple[list[str], bool]:
+    """``argv`` without ``--debug`` (accepted anywhere before a ``--``), and whether it was there."""
+    end = argv.index("--") if "--" in argv else len(argv)
+    head = [a for a in argv[:end] if a != "--debug"]
+    return head + argv[end:], len(head) < end
+
+
+def _one_line_warning(command: str):
+    """A `warnings.showwarning` printing ``bodyscan COMMAND: warning: message`` on one line."""
+    def show(message, category, filename, lineno, file=None, line=None):
+        text = " ".join(str(message).split())
+        print(f"bodyscan {command}: warning: {text}", file=file or sys.stderr)
+    return show
+
+
 def main(argv: list[str] | None = None) -> int:
+    argv, debug_flag = _split_debug(list(sys.argv[1:] if argv is None else argv))
     parser = build_parser()
     args = parser.parse_args(argv)
-    debug = args.debug or os.environ.get("BODYSCAN_DEBUG") == "1"
+    debug = debug_flag or args.debug or os.environ.get("BODYSCAN_DEBUG") == "1"
+    shown = warnings.showwarning
+    if not debug:
+        warnings.showwarning = _one_line_warning(args.command)
     try:
         return int(args.func(args) or 0)
     except _user_errors() as exc:
         if debug:
             raise
-        print(f"bodyscan {args.command}: error: {exc}", file=sys.stderr)
+        print(f"bodyscan {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except MemoryError:
+        if debug:
+            raise
+        print(f"bodyscan {args.command}: error: out of memory; ask for less (a coarser resolution, "
+              "fewer samples) or run where more memory is free", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("bodyscan: interrupted", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 if __name__ == "__main__":

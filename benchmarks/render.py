@@ -163,8 +163,10 @@ def render_mesh(vertices, faces, face_colors, out, *, views=("front", "side", "b
 
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _compose(images, list(views), title).save(out)
-    return out
+    from bodyscan._io import atomic_write
+
+    picture = _compose(images, list(views), title)
+    return atomic_write(out, picture.save)
 
 
 def section_face_colors(face_section, highlight=None) -> np.ndarray:

@@ -307,15 +307,17 @@ def build_report(sweep_dir, out, *, pictures: bool = True, gate: GateResult | No
                                                   "python", "host", "runs")},
                        indent=2, default=str))
 
+    from bodyscan._io import write_bytes, write_text
+
     out.mkdir(parents=True, exist_ok=True)
     (out / "img").mkdir(exist_ok=True)
     for image_name, png in doc.images.items():
-        (out / "img" / image_name).write_bytes(png)
-    (out / "report.md").write_text("\n".join(doc.md))
+        write_bytes(out / "img" / image_name, png)
+    write_text(out / "report.md", "\n".join(doc.md))
     page = (f"<!DOCTYPE html><html lang=\"en\"><head><meta charset=\"utf-8\">"
             f"<title>Sweep report: {html.escape(name)}</title><style>{_CSS}</style></head>"
             f"<body>{''.join(doc.html)}</body></html>")
-    (out / "index.html").write_text(page)
+    write_text(out / "index.html", page)
     return out / "index.html"
 
 
@@ -585,11 +587,16 @@ def report_command(args) -> int:
         raise BenchError(f"{sweep_dir}: no such sweep folder (bodyscan sweep ... --out DIR)")
     if (args.fail_on_regression or args.update_baseline) and not args.baseline:
         raise BenchError("--fail-on-regression and --update-baseline need --baseline FILE")
+    from bodyscan._io import check_out, write_json
+
     started = time.perf_counter()
     store = ResultStore(sweep_dir)
-    table = store.read()
     meta = store.read_json("meta.json")
     out = Path(args.out) if args.out else Path("reports") / (meta.get("sweep") or sweep_dir.name)
+    check_out(out, folder=True, error=BenchError)
+    if args.update_baseline:
+        check_out(args.baseline, option="--baseline", error=BenchError)
+    table = store.read()
     gate = None
     if args.baseline and not args.update_baseline:
         if not Path(args.baseline).is_file():
@@ -603,16 +610,16 @@ def report_command(args) -> int:
     index = build_report(sweep_dir, out, pictures=not args.no_pictures, gate=gate,
                          baseline_path=args.baseline)
     if gate is not None:
-        (out / "gate.json").write_text(json.dumps(
-            {"passed": gate.passed, "regressions": gate.regressions, "notes": gate.notes,
-             "baseline": str(args.baseline)}, indent=2))
+        write_json(out / "gate.json",
+                   {"passed": gate.passed, "regressions": gate.regressions, "notes": gate.notes,
+                    "baseline": str(args.baseline)}, indent=2)
     print(f"report: {index} and {out / 'report.md'} ({time.perf_counter() - started:.1f} s)",
           file=sys.stderr)
     if args.update_baseline:
         path = Path(args.baseline)
         path.parent.mkdir(parents=True, exist_ok=True)
         content = make_baseline(table, sweep=meta.get("sweep", ""), commit=meta.get("git_commit"))
-        path.write_text(json.dumps(content, indent=2, sort_keys=True) + "\n")
+        write_json(path, content, indent=2, sort_keys=True)
         n = sum(len(b) for b in content["metrics"].values())
         print(f"report: baseline {path} written ({n} method/posture entries)", file=sys.stderr)
         return 0

@@ -170,7 +170,7 @@ class ResultStore:
             try:
                 _atomic_write(self.root / "results.parquet",
                               lambda path: pq.write_table(table, path))
-            except OSError:      # a read-only folder: read without the cache
+            except (OSError, ValueError):   # a read-only folder: read without the cache
                 pass
         frame = table.drop_columns([_SIG]).to_pandas()
         if columns is not None:
@@ -244,17 +244,14 @@ def _json_default(value):
 
 
 def _atomic_write(final: Path, write) -> Path:
-    """Call ``write(tmp_path)``, fsync, then rename over ``final``.
+    """Call ``write(tmp_path)``, fsync, then rename over ``final`` (`bodyscan._io.atomic_write`).
 
     The temporary name keeps ``final``'s suffix (``np.savez`` would add ``.npz`` otherwise)."""
-    final = Path(final)
-    tmp = final.with_name(f".tmp-{os.getpid()}-{final.name}")
-    try:
-        write(str(tmp))
-        with open(tmp, "rb") as handle:
-            os.fsync(handle.fileno())
-        os.replace(tmp, final)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-    return final
+    from bodyscan._io import atomic_write
+
+    return atomic_write(final, write, error=_write_error())
+
+
+def _write_error():
+    from . import BenchError
+    return BenchError

@@ -74,6 +74,10 @@ def _sweep(args) -> int:
         raise BenchError(f"--workers must be >= 1, got {args.workers}")
     if args.scheduler and not args.scheduler.startswith(("tcp://", "tls://", "inproc://", "ws://")):
         raise BenchError(f"--scheduler {args.scheduler!r}: give an address like tcp://HOST:PORT")
+    if not args.dry_run:
+        from bodyscan._io import check_out
+
+        check_out(args.out, folder=True, error=BenchError)
     sweep = load_sweep(path)
     if args.dry_run:
         from .store import ResultStore

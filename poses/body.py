@@ -260,9 +260,10 @@ def save_body(body: Body, path: str | os.PathLike) -> Path:
     validate(body)
     body.require_ground_truth("saving a body file")
     path = Path(path)
+    from bodyscan._io import atomic_write
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(
-        path,
+    arrays = dict(
         vertices=np.asarray(body.vertices, dtype=np.float32),
         faces=np.asarray(body.faces, dtype=np.int32),
         vertex_section=np.asarray(body.vertex_section, dtype=np.int8),
@@ -270,4 +271,8 @@ def save_body(body: Body, path: str | os.PathLike) -> Path:
         joints=np.asarray(body.joints, dtype=np.float32),
         **body.extras,
     )
-    return path
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:   # a file object: numpy adds no ".npz" to the name
+            np.savez_compressed(fh, **arrays)
+    return atomic_write(path, write, error=BodyError)

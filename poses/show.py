@@ -96,6 +96,10 @@ def show(body: Body, out: str | os.PathLike, *, dpi: int = 110, joints: bool = T
     fig.suptitle(f"{body.name}: height {body.height:.3f} m, {len(v)} vertices, {len(f)} faces")
     out = Path(out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out, dpi=dpi)
-    plt.close(fig)
+    from bodyscan._io import atomic_write
+
+    try:
+        atomic_write(out, lambda tmp: fig.savefig(tmp, dpi=dpi))
+    finally:
+        plt.close(fig)
     return out

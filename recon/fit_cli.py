@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import json
 import sys
 import warnings
 from dataclasses import fields
-from pathlib import Path
 
 
 def register(sub) -> None:
@@ -33,7 +31,14 @@ def run(args) -> int:
     from .cloud import read_cloud
     from .posture import FitParams, estimate_posture
 
+    from bodyscan._io import check_out, write_json
+
+    from . import ReconError
+
     params = FitParams.from_strings(args.param)
+    out = check_out(args.out, error=ReconError)
+    if args.preview:
+        check_out(args.preview, option="--preview", error=ReconError)
     cloud = read_cloud(args.cloud)
     print(f"bodyscan fit: {len(cloud.points)} points from {args.cloud}", file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
@@ -41,9 +46,7 @@ def run(args) -> int:
         fit = estimate_posture(cloud.points, params, view_dir=cloud.view_dir)
     for w in caught:
         print(f"bodyscan fit: warning: {w.message}", file=sys.stderr)
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(fit.to_dict(), indent=1))
+    write_json(out, fit.to_dict(), indent=1, error=ReconError)
     t = fit.times
     print(f"bodyscan fit: wrote {out} ({len(fit.sections)} sections; voxelize {t['voxelize']:.2f} s, "
           f"match {t['match']:.2f} s, fine {t['fine']:.2f} s)", file=sys.stderr)

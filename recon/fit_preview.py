@@ -50,6 +50,10 @@ def draw_fit(points: np.ndarray, fit, path, *, max_points: int = 20000, seed: in
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=80)
-    plt.close(fig)
+    from bodyscan._io import atomic_write
+
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=80))
+    finally:
+        plt.close(fig)
     return path

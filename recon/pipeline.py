@@ -95,14 +95,14 @@ def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.n
     rec["n"] = 3
     rec["idx"] = f
     rec["section"] = np.asarray(face_section, dtype=np.int64) & 0xFF
-    try:
-        with open(path, "wb") as fh:
+    from bodyscan._io import atomic_write
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
             fh.write(header.encode("ascii"))
             fh.write(v.tobytes())
             fh.write(rec.tobytes())
-    except OSError as exc:
-        raise ReconError(f"{path}: cannot write the mesh ({exc.strerror or exc})") from None
-    return path
+    return atomic_write(path, write, error=ReconError)
 
 
 def check_points(points) -> np.ndarray:

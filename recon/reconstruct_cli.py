@@ -93,12 +93,12 @@ def run(args) -> int:
     from .params import ReconParams
     from .pipeline import reconstruct
 
+    from bodyscan._io import check_out
+
     params = ReconParams.from_overrides(parse_params(args.param))
-    out = Path(args.out)
-    if out.suffix.lower() != ".ply":
-        raise ReconError(f"--out {out}: the mesh is written as PLY; name it *.ply")
-    if not out.parent.exists():
-        raise ReconError(f"--out {out}: folder {out.parent} does not exist")
+    out = check_out(args.out, suffixes=(".ply",), error=ReconError)
+    if args.preview:
+        check_out(args.preview, option="--preview", error=ReconError)
     fit = load_fit(args.fit) if args.fit else None
     points, view_dir = read_points(args.cloud)
     print(f"reconstruct: {len(points)} points, method {args.method}", file=sys.stderr)
@@ -176,10 +176,10 @@ def preview(rec, path) -> Path:
         ax.set_title(f"{title} (front)")
         ax.axis("off")
     fig.tight_layout()
+    from bodyscan._io import atomic_write
+
     try:
-        fig.savefig(path, dpi=110)
-    except OSError as exc:
-        raise ReconError(f"--preview {path}: cannot write ({exc.strerror or exc})") from None
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110), error=ReconError)
     finally:
         plt.close(fig)
     return Path(path)

@@ -150,7 +150,14 @@ def _scan(args) -> int:
     from .cloud_io import write_cloud
     from .scan import scan
 
+    from bodyscan._io import check_out
+
+    from . import ScanError
+
     config = build_config(args)
+    check_out(args.out, error=ScanError)
+    if args.preview:
+        check_out(args.preview, option="--preview", error=ScanError)
     t0 = time.perf_counter()
     body = load_body(args.body)
     t1 = time.perf_counter()

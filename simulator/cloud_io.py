@@ -87,7 +87,7 @@ def write_cloud(scan: Scan, path: str | os.PathLike) -> Path:
     ----------
     scan : Scan
     path : str or path
-        Output file (parent folders are created).
+        Output file (parent folders are created), written atomically (`bodyscan._io`).
     """
     path = Path(path)
     n = len(scan.points)
@@ -109,11 +109,15 @@ def write_cloud(scan: Scan, path: str | os.PathLike) -> Path:
     lines.append(f"element vertex {n}")
     lines += [f"property {ply} {name}" for name, _, ply in FIELDS]
     lines.append("end_header")
+    from bodyscan._io import atomic_write
+
     path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path, "wb") as fh:
-        fh.write(("\n".join(lines) + "\n").encode("ascii"))
-        fh.write(data.tobytes())
-    return path
+
+    def write(tmp):
+        with open(tmp, "wb") as fh:
+            fh.write(("\n".join(lines) + "\n").encode("ascii"))
+            fh.write(data.tobytes())
+    return atomic_write(path, write, error=ScanError)
 
 
 def read_header(fh, path) -> tuple[int, list[tuple[str, str]], dict]:

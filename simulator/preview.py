@@ -107,6 +107,10 @@ def save_preview(scan, body, path: str | os.PathLike, *, title: str | None = Non
                  f"laser {cfg.get('laser_angle_deg', 0):g} deg, {1000 * cfg.get('resolution', 0):g} mm",
                  fontsize=11)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
+    from bodyscan._io import atomic_write
+
+    try:
+        atomic_write(path, lambda tmp: fig.savefig(tmp, dpi=110, bbox_inches="tight"))
+    finally:
+        plt.close(fig)
     return path
