@@ -139,26 +139,15 @@ def _metric_params(items):
     from . import BenchError
     from .metrics import MetricParams
 
+    from bodyscan._params import coerce
+
     overrides = _pairs(items, "--metric")
     fields = {f.name: f for f in dataclasses.fields(MetricParams)}
     values = {}
     for name, text in overrides.items():
         if name not in fields:
             raise BenchError(f"--metric {name}: unknown (known: {', '.join(fields)})")
-        default = getattr(MetricParams(), name)
-        try:
-            if isinstance(default, bool):
-                if text.lower() not in ("true", "false", "1", "0", "yes", "no"):
-                    raise ValueError
-                values[name] = text.lower() in ("true", "1", "yes")
-            elif isinstance(default, tuple):
-                values[name] = tuple(float(x) for x in text.split(","))
-            elif isinstance(default, (int, float)) and not isinstance(default, bool):
-                values[name] = type(default)(float(text)) if isinstance(default, float) else int(text)
-            else:
-                values[name] = text
-        except ValueError:
-            raise BenchError(f"--metric {name}={text!r}: expected a {type(default).__name__}") from None
+        values[name] = coerce(fields[name], text, BenchError)
     return MetricParams(**values)
 
 
@@ -193,18 +182,22 @@ def _k(text):
 
 
 def _scanner(items) -> dict:
+    """``--scanner`` overrides, as text: `simulator.ScannerConfig` converts and checks them."""
+    import dataclasses
+
+    from bodyscan.simulator import ScanError, ScannerConfig
+
     from . import BenchError
 
-    out = {}
-    for name, text in _pairs(items, "--scanner").items():
-        if name in ("heads", "projection"):
-            out[name] = text
-            continue
-        try:
-            out[name] = int(text) if name == "seed" else (
-                text.lower() in ("true", "1", "yes") if name == "center_on_body" else float(text))
-        except ValueError:
-            raise BenchError(f"--scanner {name}={text!r}: expected a number") from None
+    out = _pairs(items, "--scanner")
+    known = {f.name for f in dataclasses.fields(ScannerConfig)} | {"k"}
+    for name in out:
+        if name not in known:
+            raise BenchError(f"--scanner {name}: unknown (known: {', '.join(sorted(known))})")
+    try:
+        ScannerConfig().replace(**out)
+    except ScanError as exc:
+        raise BenchError(f"--scanner: {exc}") from None
     return out
 
 

@@ -90,6 +90,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("bodyscan: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:      # output piped into a reader that stopped (| head)
+        sys.stderr.close()
+        return 1
     finally:
         warnings.showwarning = shown
 

@@ -23,6 +23,8 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
+from bodyscan._params import check_fields
+
 from . import BenchError
 
 #: Body section names, in label order (same as ``poses.SECTIONS``).
@@ -64,16 +66,27 @@ class MetricParams:
         Closest-point backend (see `SurfaceIndex`; same answers, Open3D is faster).
     """
 
-    spurious_angle_deg: float = 30.0
-    oriented: bool = True
-    bridging_distance_m: float = 0.005
-    taus_m: tuple = (0.005, 0.010)
-    n_samples: int = 50_000
-    seen_radius_m: float = 0.015
-    seed: int = 0
-    backend: str = "auto"
+    spurious_angle_deg: float = field(default=30.0,
+        metadata={"help": "a triangle is spurious when its normal is more than this from the true normal", "unit": "deg", "range": (0.01, 179.99)})
+    oriented: bool = field(default=True,
+        metadata={"help": "compare oriented normals (a flipped triangle is spurious)", "unit": "", "range": None})
+    bridging_distance_m: float = field(default=0.005,
+        metadata={"help": "a triangle outside the body farther than this from its surface is bridging", "unit": "m", "range": (0, 1)})
+    taus_m: tuple = field(default=(0.005, 0.010),
+        metadata={"help": "distance thresholds of precision, recall and F-score", "unit": "m", "range": (1e-05, 1)})
+    n_samples: int = field(default=50_000,
+        metadata={"help": "area-uniform samples drawn on each surface", "unit": "", "range": (100, 10000000)})
+    seen_radius_m: float = field(default=0.015,
+        metadata={"help": "a true-surface sample is seen when a scan point lies within this", "unit": "m", "range": (1e-05, 1)})
+    seed: int = field(default=0,
+        metadata={"help": "seed of the surface samples", "unit": "", "range": (0, None)})
+    backend: str = field(default="auto",
+        metadata={"help": "closest-point backend: auto, open3d or numpy (same answers)", "unit": "", "range": None})
 
     def __post_init__(self):
+        check_fields(self, BenchError)
+        if self.backend not in ("auto", "open3d", "numpy"):
+            raise BenchError(f"backend must be auto, open3d or numpy, got {self.backend!r}")
         if not 0 < self.spurious_angle_deg < 180:
             raise BenchError(f"spurious_angle_deg must be in (0, 180) degrees, got {self.spurious_angle_deg}")
         if self.bridging_distance_m < 0 or self.seen_radius_m <= 0:

@@ -27,7 +27,7 @@ Settings (`PeerParams`), each the usual choice for the tool:
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -48,14 +48,29 @@ PEERS = {
 class PeerParams:
     """Settings of the peer reconstructors (see the module docstring)."""
 
-    normal_k: int = 20                      # neighbours of the PCA normal
-    poisson_depth: int = 9                  # octree depth (Open3D and pymeshlab)
-    poisson_scale: float = 1.1              # bounding-box scale of the octree
-    trim_quantile: float = 0.05             # poisson-trimmed: density quantile removed
-    bpa_radii: tuple = (1.5, 3.0, 6.0)      # ball radii, in mean nearest-neighbour spacings
-    alpha: float = 5.0                      # alpha, in mean nearest-neighbour spacings
-    spsr_point_weight: float = 4.0          # pymeshlab screened Poisson interpolation weight
-    threads: int = 1                        # stable timings
+    normal_k: int = field(default=20,  # neighbours of the PCA normal
+        metadata={"help": "neighbours of the PCA normal", "unit": "", "range": (3, 1000)})
+    poisson_depth: int = field(default=9,  # octree depth (Open3D and pymeshlab)
+        metadata={"help": "octree depth of Poisson reconstruction", "unit": "", "range": (1, 14)})
+    poisson_scale: float = field(default=1.1,  # bounding-box scale of the octree
+        metadata={"help": "bounding-box scale of the octree", "unit": "", "range": (1, 10)})
+    trim_quantile: float = field(default=0.05,  # poisson-trimmed: density quantile removed
+        metadata={"help": "poisson-trimmed: density quantile removed", "unit": "", "range": (0, 1)})
+    bpa_radii: tuple = field(default=(1.5, 3.0, 6.0),  # ball radii, in mean nearest-neighbour spacings
+        metadata={"help": "ball-pivoting radii", "unit": "spacings", "range": (0.01, 1000)})
+    alpha: float = field(default=5.0,  # alpha, in mean nearest-neighbour spacings
+        metadata={"help": "alpha of the alpha shape", "unit": "spacings", "range": (0.01, 1000)})
+    spsr_point_weight: float = field(default=4.0,  # pymeshlab screened Poisson interpolation weight
+        metadata={"help": "screened Poisson interpolation weight (pymeshlab)", "unit": "", "range": (0, 1000)})
+    threads: int = field(default=1,  # stable timings
+        metadata={"help": "threads of the peer libraries (1: stable timings)", "unit": "", "range": (1, 256)})
+
+    def __post_init__(self):
+        from bodyscan._params import check_fields
+
+        from . import BenchError
+
+        check_fields(self, BenchError)
 
     def as_columns(self) -> dict:
         return {f"peer_{k}": (",".join(map(str, v)) if isinstance(v, tuple) else v)

@@ -4,14 +4,10 @@ from __future__ import annotations
 
 import sys
 import warnings
-from dataclasses import fields
 
 
 def register(sub) -> None:
     """Add ``bodyscan fit`` to the subparsers ``sub``."""
-    from .posture import FitParams
-
-    names = ", ".join(f"{f.name}={getattr(FitParams(), f.name)}" for f in fields(FitParams))
     p = sub.add_parser(
         "fit", help="fit the body model to a point cloud (posture estimation, paper section 2)",
         description="Fit the body model (11 sections of elliptic columns and caps) to a point cloud: "
@@ -22,8 +18,8 @@ def register(sub) -> None:
     p.add_argument("--preview", metavar="PNG", help="also draw the cloud with the model over it, in "
                    "three views, after the volume match and after the fine adjustment")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help=f"set a FitParams parameter (repeatable). Names and defaults: {names}. "
-                        "Lengths in metres, angles in degrees; see recon/posture.py")
+                   help="set a posture-estimation parameter (repeatable); `--param help` lists them "
+                        "all with default, unit, range and meaning")
     p.set_defaults(func=run)
 
 
@@ -35,6 +31,13 @@ def run(args) -> int:
 
     from . import ReconError
 
+    from bodyscan._params import wants_help
+
+    if wants_help(args.param):
+        from .params import stage_help
+
+        print(stage_help(("fit",)))
+        return 0
     params = FitParams.from_strings(args.param)
     out = check_out(args.out, error=ReconError)
     if args.preview:

@@ -10,7 +10,12 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field, fields
 
+from bodyscan._params import check_fields, coerce
+
 from . import ReconError
+
+#: Losses of `scipy.optimize.least_squares` (``fit_loss``).
+FIT_LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 
 
 @dataclass(frozen=True)
@@ -192,33 +197,59 @@ class ClusterParams:
         neighbour within the neighbour radius (paper silent; it leaves them out).
     """
 
-    t_d: float = 0.30               # paper 3, 4.2: 30 % of each section's width
-    mesh_theta: int = 10            # paper 4.2
-    mesh_h: int = 10                # paper 4.2
-    t_n_factor: float = 0.5         # paper 4.2: value lost; chosen by sweep
-    refine_adjacent: bool = False   # paper silent
-    otsu_bins: int = 16             # paper silent
-    near_band: float = 1.0          # paper silent, bin widths
-    min_cell_points: int = 12       # paper silent
-    neighbor_radius: float = 0.0    # paper 3.2: "a certain distance"; 0 = automatic
-    neighbor_spacing: float = 3.0   # paper silent
-    seam_width: float = 1.5         # paper 3.2, spacings
-    joint_reach: float = 0.75       # paper silent
-    joint_plane_weight: float = 1.0  # paper silent; 0 = the paper's erosion alone
-    joint_plane_overlap_middle: bool = True  # paper silent (chosen: see joint_plane_weight)
-    mitre_band: float = 0.1          # paper silent (chosen: see above), widths
-    side_joint_planes: bool = True  # paper silent (chosen: see above)
-    three_keep_nearest: float = 0.1  # paper silent (chosen: see above)
-    claim_across_joints: float = 0.5  # paper silent (chosen: see above), widths
-    joint_plane_bones: bool = True   # paper silent (chosen: see above)
-    side_plane_tilt: float = 1.0     # paper silent (chosen: see above), tangent of the tilt
-    hip_planes: bool = True          # paper silent (chosen: see above), flexed hips only
-    hip_plane_tilt: float = 0.55     # paper silent (chosen: measured on the labels, see above)
-    hip_plane_offset: float = 0.15   # paper silent (chosen: measured on the labels), thigh widths
-    max_rounds: int = 20            # paper silent
-    adopt_unlabeled: bool = True    # paper silent
+    t_d: float = field(default=0.30,  # paper 3, 4.2: 30 % of each section's width
+        metadata={"help": "simple clustering: a point joins every section whose model surface is nearer than this times the section's width (T_d)", "unit": "", "range": (0.01, 2.0)})
+    mesh_theta: int = field(default=10,  # paper 4.2
+        metadata={"help": "cells around each section's side surface (theta) for the T_n refinement", "unit": "", "range": (1, 1000)})
+    mesh_h: int = field(default=10,  # paper 4.2
+        metadata={"help": "cells along each section's axis (h) for the T_n refinement", "unit": "", "range": (1, 1000)})
+    t_n_factor: float = field(default=0.5,  # paper 4.2: value lost; chosen by sweep
+        metadata={"help": "T_n = the cell histogram's maximum frequency times this; a cell with more points near its Otsu threshold is kept whole", "unit": "", "range": (0, 100)})
+    refine_adjacent: bool = field(default=False,  # paper silent
+        metadata={"help": "refinement also splits off points claimed by an adjacent section away from their joint", "unit": "", "range": None})
+    otsu_bins: int = field(default=16,  # paper silent
+        metadata={"help": "bins of each cell's histogram of r (the Otsu threshold)", "unit": "", "range": (2, 1000)})
+    near_band: float = field(default=1.0,  # paper silent, bin widths
+        metadata={"help": "'near the Otsu threshold': within this many bin widths of it", "unit": "bins", "range": (0.01, 100)})
+    min_cell_points: int = field(default=12,  # paper silent
+        metadata={"help": "cells with fewer points are kept whole", "unit": "", "range": (2, None)})
+    neighbor_radius: float = field(default=0.0,  # paper 3.2: "a certain distance"; 0 = automatic
+        metadata={"help": "neighbourhood radius of the multi-section rules; 0 = automatic (neighbor_spacing)", "unit": "m", "range": (0, 1)})
+    neighbor_spacing: float = field(default=3.0,  # paper silent
+        metadata={"help": "automatic neighbour radius, in median point spacings", "unit": "spacings", "range": (0.1, 100)})
+    seam_width: float = field(default=1.5,  # paper 3.2, spacings
+        metadata={"help": "joint rule: points of the proximal section this near the distal one stay in both (the seam)", "unit": "spacings", "range": (0.01, 100)})
+    joint_reach: float = field(default=0.75,  # paper silent
+        metadata={"help": "a point is at the joint of two sections within this times the larger width", "unit": "widths", "range": (0.01, 10)})
+    joint_plane_weight: float = field(default=1.0,  # paper silent; 0 = the paper's erosion alone
+        metadata={"help": "joint rule: weight of the model's joint plane against the erosion fronts (0 = the paper's fronts alone)", "unit": "", "range": (0, 100)})
+    joint_plane_overlap_middle: bool = field(default=True,  # paper silent (chosen: see joint_plane_weight)
+        metadata={"help": "the joint plane passes through the middle of the two columns' overlap, not the distal end", "unit": "", "range": None})
+    mitre_band: float = field(default=0.1,  # paper silent (chosen: see above), widths
+        metadata={"help": "the joint plane is the mitre of the two axes only where the joint lies within this of the distal end", "unit": "widths", "range": (0, 100)})
+    side_joint_planes: bool = field(default=True,  # paper silent (chosen: see above)
+        metadata={"help": "at the shoulders, the arm's cross-section through the joint also votes", "unit": "", "range": None})
+    three_keep_nearest: float = field(default=0.1,  # paper silent (chosen: see above)
+        metadata={"help": "three-or-more rule: a point this near a section's surface copies only from that section (0 = the paper's rule)", "unit": "widths", "range": (0, 10)})
+    claim_across_joints: float = field(default=0.5,  # paper silent (chosen: see above), widths
+        metadata={"help": "a point claimed by one section alone, within this of an adjacent section past their joint plane, goes to that section (0 = off)", "unit": "widths", "range": (0, 10)})
+    joint_plane_bones: bool = field(default=True,  # paper silent (chosen: see above)
+        metadata={"help": "joint planes at the end joints from the fitted bones, not the columns' axes", "unit": "", "range": None})
+    side_plane_tilt: float = field(default=1.0,  # paper silent (chosen: see above), tangent of the tilt
+        metadata={"help": "the shoulders' plane is tilted toward the midline by this (tangent of the tilt)", "unit": "", "range": (0, 100)})
+    hip_planes: bool = field(default=True,  # paper silent (chosen: see above), flexed hips only
+        metadata={"help": "at flexed hips, the joint plane is the groin's crease", "unit": "", "range": None})
+    hip_plane_tilt: float = field(default=0.55,  # paper silent (chosen: measured on the labels, see above)
+        metadata={"help": "outward tilt of the hips' planes (tangent)", "unit": "", "range": (0, 100)})
+    hip_plane_offset: float = field(default=0.15,  # paper silent (chosen: measured on the labels), thigh widths
+        metadata={"help": "the hips' planes lie this far past the hip joint", "unit": "thigh widths", "range": (0, 10)})
+    max_rounds: int = field(default=20,  # paper silent
+        metadata={"help": "rounds of the multi-section rules before the rest is settled by distance to the model", "unit": "", "range": (1, 1000)})
+    adopt_unlabeled: bool = field(default=True,  # paper silent
+        metadata={"help": "points in no section take the sections of their nearest labelled neighbour", "unit": "", "range": None})
 
     def __post_init__(self):
+        check_fields(self, ReconError)
         _check(self.t_d > 0, "t_d", self.t_d, "a positive fraction of the section width")
         for name in ("mesh_theta", "mesh_h", "otsu_bins", "max_rounds"):
             _check(int(getattr(self, name)) >= 1, name, getattr(self, name), "an integer >= 1")
@@ -400,30 +431,53 @@ class SurfaceParams:
         normals cost about 0.2 s there); 3: 0.267 %, 21/21, max 0.47 %.
     """
 
-    seam_overlap: float = 0.6       # paper 3.3, radians
-    cap_overlap: float = 0.35       # paper 3.3, mean radii
-    max_edge_factor: float = 0.0    # paper 4.2: holes are covered (0 = no limit)
-    hull_edge_factor: float = 4.0   # paper silent
-    min_section_points: int = 10    # paper silent
-    mesh_adopted: bool = False      # paper 3: only points within T_d are clustered
-    open_joints: bool = True        # paper 3.3 (open ends), applied at joints
-    open_joint_ends: bool = True    # paper silent
-    workers: int = 2                # not a method parameter: speed only
-    inner_depth: float = 0.15       # paper 3.3 (inner triangles), widths
-    fold_cos: float = 0.0           # paper: none (-1 = off); chosen, see above
-    fold_edge_factor: float = 4.0   # paper: none; chosen, spacings (= hull_edge_factor)
-    carve_margin: float = 0.5       # paper: none (0 = off); chosen, see above, spacings
-    carve_min_edge: float = 2.0     # chosen, spacings
-    carve_reach: float = 1.0        # chosen, spacings
-    carve_min_rays: int = 1         # chosen, see above
-    facing_cos: float = -0.4        # paper: none (-1 = off); chosen, see above
-    facing_min_edge: float = 2.0    # chosen, spacings (= carve_min_edge)
-    concave_height: float = 0.3     # paper: none (0 = off); chosen, see above, spacings
-    concave_mean_height: float = 0.7  # chosen, spacings
-    concave_min_edge: float = 2.5   # chosen, spacings (speed on dense scans, see above)
-    concave_neighbours: int = 8     # chosen, points
+    seam_overlap: float = field(default=0.6,  # paper 3.3, radians
+        metadata={"help": "points within this angle of theta = 0 are copied across the seam", "unit": "rad", "range": (0.01, 3.14)})
+    cap_overlap: float = field(default=0.35,  # paper 3.3, mean radii
+        metadata={"help": "the column and cap projections overlap by this along the axis", "unit": "mean radii", "range": (0.01, 2)})
+    max_edge_factor: float = field(default=0.0,  # paper 4.2: holes are covered (0 = no limit)
+        metadata={"help": "triangles with an edge longer than this are removed (0 = keep all: holes covered, as the paper)", "unit": "spacings", "range": (0, 1000)})
+    hull_edge_factor: float = field(default=4.0,  # paper silent
+        metadata={"help": "boundary triangles with an edge longer than this are peeled off", "unit": "spacings", "range": (0.01, 1000)})
+    min_section_points: int = field(default=10,  # paper silent
+        metadata={"help": "a section with fewer points is skipped with a warning", "unit": "", "range": (3, None)})
+    mesh_adopted: bool = field(default=False,  # paper 3: only points within T_d are clustered
+        metadata={"help": "also mesh the points that got their section from a neighbour (fingers, toes)", "unit": "", "range": None})
+    open_joints: bool = field(default=True,  # paper 3.3 (open ends), applied at joints
+        metadata={"help": "leave a section's proximal end at a joint open (no cap)", "unit": "", "range": None})
+    open_joint_ends: bool = field(default=True,  # paper silent
+        metadata={"help": "leave a section's end open where a child section continues it", "unit": "", "range": None})
+    workers: int = field(default=2,  # not a method parameter: speed only
+        metadata={"help": "threads triangulating the sections in parallel (speed only, same result)", "unit": "", "range": (1, 256)})
+    inner_depth: float = field(default=0.15,  # paper 3.3 (inner triangles), widths
+        metadata={"help": "remove triangles deeper than this inside an adjacent section's model (0 = off)", "unit": "widths", "range": (0, 10)})
+    fold_cos: float = field(default=0.0,  # paper: none (-1 = off); chosen, see above
+        metadata={"help": "fold rule: long triangles whose normal has a cosine below this with their chart are removed (-1 = off)", "unit": "", "range": (-1, 1)})
+    fold_edge_factor: float = field(default=4.0,  # paper: none; chosen, spacings (= hull_edge_factor)
+        metadata={"help": "fold rule: only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
+    carve_margin: float = field(default=0.5,  # paper: none (0 = off); chosen, see above, spacings
+        metadata={"help": "free-space carving: a triangle crossed by a camera ray to a point this far behind it is removed (0 = off)", "unit": "spacings", "range": (0, 1000)})
+    carve_min_edge: float = field(default=2.0,  # chosen, spacings
+        metadata={"help": "carving tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
+    carve_reach: float = field(default=1.0,  # chosen, spacings
+        metadata={"help": "carving tests the points within the circumradius plus this of the centroid", "unit": "spacings", "range": (0, 1000)})
+    carve_min_rays: int = field(default=1,  # chosen, see above
+        metadata={"help": "carving: a triangle is air when at least this many rays cross it", "unit": "", "range": (1, None)})
+    facing_cos: float = field(default=-0.4,  # paper: none (-1 = off); chosen, see above
+        metadata={"help": "view consistency: long triangles with a cosine below this with a vertex's viewing direction are removed (-1 = off)", "unit": "", "range": (-1, 1)})
+    facing_min_edge: float = field(default=2.0,  # chosen, spacings (= carve_min_edge)
+        metadata={"help": "view consistency tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
+    concave_height: float = field(default=0.3,  # paper: none (0 = off); chosen, see above, spacings
+        metadata={"help": "concavity covers: a triangle standing this far in front of every vertex's tangent plane is removed (0 = off)", "unit": "spacings", "range": (0, 1000)})
+    concave_mean_height: float = field(default=0.7,  # chosen, spacings
+        metadata={"help": "concavity covers: ... or this far in front of them on average", "unit": "spacings", "range": (0, 1000)})
+    concave_min_edge: float = field(default=2.5,  # chosen, spacings (speed on dense scans, see above)
+        metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
+    concave_neighbours: int = field(default=8,  # chosen, points
+        metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
 
     def __post_init__(self):
+        check_fields(self, ReconError)
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")
         _check(0 < self.cap_overlap <= 2, "cap_overlap", self.cap_overlap, "in (0, 2] mean radii")
         _check(self.max_edge_factor >= 0, "max_edge_factor", self.max_edge_factor, ">= 0 (0 = no limit)")
@@ -454,67 +508,99 @@ def _check(ok, name, value, what):
 class FitParams:
     """Parameters of posture estimation; paper values as defaults, paper section in each comment."""
 
-    voxel_min: float = 0.010               # 2.2: lower limit of the voxel edge, m (value not given; chosen)
-    voxel_max: float = 0.040               # 2.2, 4.2: upper limit of the voxel edge, 40 mm
-    voxel_density_k: int = 6               # 2.2: density = distance to the k-th nearest neighbour (chosen)
-    voxel_density_quantile: float = 0.95   # 2.2: "the sparsest part": this quantile of it (chosen)
-    voxel_spacing_factor: float = 1.0      # 2.2: voxel edge / sparsest spacing (chosen)
-    voxel_reach: float = 0.3               # 2.2: inside test: enclosing contours within this, m (chosen)
-    contour_weight: float = 2.0            # 2.3(1), 4.2: weight n of contour voxels, n = 2
-    match_empty_weight: float = -1.0       # 2.3(1): weight of empty voxels in the match (chosen)
-    match_claimed_weight: float = -0.5     # 2.3(2): weight of voxels inside sections already placed (chosen)
-    match_arms_first_retry: int = 1        # 2.3(2): 1 = when an upper arm and a leg section of one side both land in
+    voxel_min: float = field(default=0.010,  # 2.2: lower limit of the voxel edge, m (value not given; chosen)
+        metadata={"help": "lower limit of the voxel edge", "unit": "m", "range": (0.001, 0.5)})
+    voxel_max: float = field(default=0.040,  # 2.2, 4.2: upper limit of the voxel edge, 40 mm
+        metadata={"help": "upper limit of the voxel edge (paper: 40 mm)", "unit": "m", "range": (0.001, 0.5)})
+    voxel_density_k: int = field(default=6,  # 2.2: density = distance to the k-th nearest neighbour (chosen)
+        metadata={"help": "cloud density = distance to the k-th nearest neighbour", "unit": "", "range": (1, 100)})
+    voxel_density_quantile: float = field(default=0.95,  # 2.2: "the sparsest part": this quantile of it (chosen)
+        metadata={"help": "'the sparsest part': this quantile of the densities", "unit": "", "range": (0, 1)})
+    voxel_spacing_factor: float = field(default=1.0,  # 2.2: voxel edge / sparsest spacing (chosen)
+        metadata={"help": "voxel edge = this times the sparsest spacing", "unit": "", "range": (0.1, 100)})
+    voxel_reach: float = field(default=0.3,  # 2.2: inside test: enclosing contours within this, m (chosen)
+        metadata={"help": "inside test: enclosing contour voxels within this", "unit": "m", "range": (0, 2)})
+    contour_weight: float = field(default=2.0,  # 2.3(1), 4.2: weight n of contour voxels, n = 2
+        metadata={"help": "weight n of contour voxels in the match (paper: 2)", "unit": "", "range": (-100, 100)})
+    match_empty_weight: float = field(default=-1.0,  # 2.3(1): weight of empty voxels in the match (chosen)
+        metadata={"help": "weight of empty voxels in the match", "unit": "", "range": (-100, 100)})
+    match_claimed_weight: float = field(default=-0.5,  # 2.3(2): weight of voxels inside sections already placed (chosen)
+        metadata={"help": "weight of voxels inside sections already placed", "unit": "", "range": (-100, 100)})
+    match_arms_first_retry: int = field(default=1,  # 2.3(2): 1 = when an upper arm and a leg section of one side both land in
+        metadata={"help": "1 = when an upper arm and a leg of one side both land in empty voxels, also place the arms first and keep the better", "unit": "", "range": (0, 1)})
     #   empty voxels (below `match_min_section_score`), the sections are placed again with the arms before the
     #   legs and that placement kept when it explains more points and the side's leg scores no lower on the
     #   volume (a leg scoring lower gave its voxels to the arm) (`recon.match._place_body`): the leg, placed first,
     #   took the arm's voxels (squat k3: the thigh rose onto the forearm resting over the knee, score -0.26, and
     #   the upper arm was sent backwards into empty voxels, -0.30; arms first: ua_l fitted). 0 = legs first only
     #   (chosen: both in empty voxels means one of them is misplaced; the points decide, as between torsos)
-    match_max_adduction: float = 0.25      # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
-    match_leg_claim_margin: float = 0.02   # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond
+    match_max_adduction: float = field(default=0.25,  # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
+        metadata={"help": "a limb points at most this far (cosine) across the body", "unit": "", "range": (-1, 1)})
+    match_leg_claim_margin: float = field(default=0.02,  # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond
+        metadata={"help": "the legs claim their voxels this far beyond their model radii", "unit": "m", "range": (0, 0.5)})
                                            # their model radii, m: a real thigh is wider than the standard column, and the
                                            # contour voxels just outside it drew a hanging forearm onto the thigh's front
                                            # (arms_close k3 at 10 mm: wrist 11.1 -> 4.0 cm; 20 mm: arms_close k1-k2 fa_r
                                            # 7.8 / 11.3 -> 4.0 / 3.2 cm; chosen, as `match_claim_margin`)
-    match_claim_margin: float = 0.02       # 2.3(2): torso claimed this far beyond its surface, m (chosen)
-    match_upright_prior: float = 0.5       # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
-    match_torso_candidates: int = 2        # 2.3(1): best torso poses whose whole-body match is compared,
+    match_claim_margin: float = field(default=0.02,  # 2.3(2): torso claimed this far beyond its surface, m (chosen)
+        metadata={"help": "the torso claims voxels this far beyond its surface", "unit": "m", "range": (0, 0.5)})
+    match_upright_prior: float = field(default=0.5,  # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
+        metadata={"help": "score penalty times (1 - cos tilt) of the torso from +z", "unit": "", "range": (0, 100)})
+    match_torso_candidates: int = field(default=2,  # 2.3(1): best torso poses whose whole-body match is compared,
+        metadata={"help": "best torso poses whose whole-body match is compared", "unit": "", "range": (1, 100)})
                                            # each also with its roll from the legs (chosen)
-    match_min_section_score: float = 0.0   # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
-    match_min_shell_score: float = 0.3     # 2.3(2): ... unless placed on its seen surface, by a shell score at
+    match_min_section_score: float = field(default=0.0,  # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
+        metadata={"help": "a limb section whose volume weight is below this is unfitted", "unit": "", "range": (-100, 100)})
+    match_min_shell_score: float = field(default=0.3,  # 2.3(2): ... unless placed on its seen surface, by a shell score at
+        metadata={"help": "... unless placed on its seen surface with a shell score at least this", "unit": "", "range": (-100, 100)})
                                            # least this (a limb seen from one side only; chosen)
-    match_shell_voxel: float = 0.025       # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
+    match_shell_voxel: float = field(default=0.025,  # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
+        metadata={"help": "the shell score is used only on volumes of voxels this fine", "unit": "m", "range": (0, 1)})
                                            # scans (15 mm voxels). Measured: at 0.035 (10 mm scans, 25-30 mm voxels)
                                            # squat k=3 went 8 -> 17 cm; on 40 mm voxels (20 mm scans) a rescued arm
                                            # let a misplaced child's fit through (chosen)
-    match_thigh_max_rise: float = 0.2      # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
+    match_thigh_max_rise: float = field(default=0.2,  # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
+        metadata={"help": "a thigh rising more than this (cosine) toward the torso's top must flex more than it rises", "unit": "", "range": (-1, 1)})
                                            # must flex front or back more than it rises (anatomy; chosen)
-    match_upright_start: float = 5.0       # 2.3(1): the best torso within this of +z (degrees) is always among
+    match_upright_start: float = field(default=5.0,  # 2.3(1): the best torso within this of +z (degrees) is always among
+        metadata={"help": "the best torso within this of +z is always matched whole", "unit": "deg", "range": (0, 90)})
                                            # those matched whole, and stays so when refined (chosen: 5 measured
                                            # better than 12 on heavy_a_pose, standing at 10 and 20 mm)
-    match_torso_directions: int = 200      # 2.3(1): torso axis candidates on a hemisphere (chosen)
-    match_directions: int = 300            # 2.3(2): limb direction candidates on a sphere (chosen)
-    match_beam: int = 6                    # 2.3(2): proximal directions kept per limb chain (chosen)
-    match_max_bend: float = 150.0          # 2.3(2): largest knee bend searched, degrees (chosen)
-    match_max_elbow_bend: float = 140.0    # 2.3(2): largest elbow bend searched, degrees (anatomy: about 145;
+    match_torso_directions: int = field(default=200,  # 2.3(1): torso axis candidates on a hemisphere (chosen)
+        metadata={"help": "torso axis candidates on a hemisphere", "unit": "", "range": (10, 100000)})
+    match_directions: int = field(default=300,  # 2.3(2): limb direction candidates on a sphere (chosen)
+        metadata={"help": "limb direction candidates on a sphere", "unit": "", "range": (10, 100000)})
+    match_beam: int = field(default=6,  # 2.3(2): proximal directions kept per limb chain (chosen)
+        metadata={"help": "proximal directions kept per limb chain", "unit": "", "range": (1, 1000)})
+    match_max_bend: float = field(default=150.0,  # 2.3(2): largest knee bend searched, degrees (chosen)
+        metadata={"help": "largest knee bend searched", "unit": "deg", "range": (0, 180)})
+    match_max_elbow_bend: float = field(default=140.0,  # 2.3(2): largest elbow bend searched, degrees (anatomy: about 145;
+        metadata={"help": "largest elbow bend searched", "unit": "deg", "range": (0, 180)})
                                            # a forearm folded back down a raised arm was matched at 150; chosen)
-    match_rounds: int = 2                  # 2.1: matches with the size re-estimated in between (chosen; 3
+    match_rounds: int = field(default=2,  # 2.1: matches with the size re-estimated in between (chosen; 3
+        metadata={"help": "matches with the body's size re-estimated in between", "unit": "", "range": (1, 10)})
                                            # measured worse on child_standing, t_pose and seated)
-    match_resize_upright: int = 1          # 2.1: 1 = when the best match's torso is tilted (more than
+    match_resize_upright: int = field(default=1,  # 2.1: 1 = when the best match's torso is tilted (more than
+        metadata={"help": "1 = after a resize, the best upright torso is matched again too", "unit": "", "range": (0, 1)})
                                            # `match_upright_start`) and the body is resized, the best upright torso
                                            # is matched again at the new size too; it may win only when its head finds the
                                            # crown on its axis. Measured: heavy_a_pose k3 at 10 mm, tilted 22 degrees with 4
                                            # arm sections unfitted (4.1 / 7.3 cm) -> upright, all fitted (3.0 / 7.7 cm)
                                            # (chosen)
-    match_legs_roll_wide: int = 1          # 2.3(1): 1 = a torso roll taken from the legs (`_roll_from_legs`) competes only
+    match_legs_roll_wide: int = field(default=1,  # 2.3(1): 1 = a torso roll taken from the legs (`_roll_from_legs`) competes only
+        metadata={"help": "1 = a torso roll from the legs competes only when the waist is wider than deep", "unit": "", "range": (0, 1)})
                                            # when the waist, measured on the points, comes out wider than deep (anatomy, as
                                            # `_check_plausible`): legs split front-back by a stride give the wrong roll.
                                            # Measured: tall_walking k2 at 10 mm, refused -> pass 3.0 / 4.3 cm; nothing
                                            # else changed at 10 or 20 mm (chosen)
-    match_resize_tolerance: float = 0.06   # 2.1: re-match only when the limbs measure off by more (chosen)
-    match_min_anchor_shift: float = 0.08   # 2.3(1): slide the torso to hang from the crown when it is off
-    match_max_anchor_shift: float = 0.15   #   by more than this, and at most this far, m (chosen)
-    match_crown_on_trunk: int = 1          # 2.3(1): 1 = when the head finds no crown on its own axis, the crown is sought
+    match_resize_tolerance: float = field(default=0.06,  # 2.1: re-match only when the limbs measure off by more (chosen)
+        metadata={"help": "re-match only when the limbs measure off by more than this ratio", "unit": "", "range": (0, 10)})
+    match_min_anchor_shift: float = field(default=0.08,  # 2.3(1): slide the torso to hang from the crown when it is off
+        metadata={"help": "slide the torso to hang from the crown when it is off by more than this", "unit": "m", "range": (0, 2)})
+    match_max_anchor_shift: float = field(default=0.15,  #   by more than this, and at most this far, m (chosen)
+        metadata={"help": "... and by at most this", "unit": "m", "range": (0, 2)})
+    match_crown_on_trunk: int = field(default=1,  # 2.3(1): 1 = when the head finds no crown on its own axis, the crown is sought
+        metadata={"help": "1 = seek the crown on the trunk's axis when the head finds none on its own", "unit": "", "range": (0, 1)})
                                            # on the trunk's axis (`recon.match._crown_on_trunk`: the head sits on the
                                            # trunk; a torso matched too high leaves its head leaning onto nothing) and
                                            # the torso slid down to it when that explains more points. Measured at
@@ -522,90 +608,125 @@ class FitParams:
                                            # k1_rot137 6.4 / 11.1 -> 2.0 / 3.7 cm; nothing else changed. At any
                                            # stature (not only from `fit_anchor_min_stature`): 20 mm child_arms_raised
                                            # k1_rot137 WRONG 15.7 / 19.8 -> pass 3.3 / 5.4 cm (chosen)
-    match_size_from_crown: int = 0         # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
-    match_min_first_stature: float = 1.5   # 2.1: stature of the first match at least this, m (chosen)
-    match_size_disagree: float = 0.1       # 2.1: the legs' length (from the matched hips) and crown to sole (which does
+    match_size_from_crown: int = field(default=0,  # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
+        metadata={"help": "1 = size the body from crown-to-sole lengths, 0 = from the legs", "unit": "", "range": (0, 1)})
+    match_min_first_stature: float = field(default=1.5,  # 2.1: stature of the first match at least this, m (chosen)
+        metadata={"help": "stature of the first match at least this", "unit": "m", "range": (0.3, 3)})
+    match_size_disagree: float = field(default=0.1,  # 2.1: the legs' length (from the matched hips) and crown to sole (which does
+        metadata={"help": "legs and crown-to-sole differing by more than this ratio: size from crown to sole", "unit": "", "range": (0, 10)})
                                            # not depend on where the torso sits along its axis) differ by more than this
                                            # ratio: the hips were misplaced, size from crown to sole (adult sizes; a
                                            # walker 1.97 m tall, hips matched 11 cm high: legs 2.2 m, crown to sole
                                            # 2.0 m; on the library's other adult-size matches they agree within
                                            # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
                                            # chosen)
-    match_leg_trunk_min: float = 0.8       # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
+    match_leg_trunk_min: float = field(default=0.8,  # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
+        metadata={"help": "leg chains shorter than this times the trunk are legs cut from the scan (0 = off)", "unit": "", "range": (0, 10)})
                                            # less than this times the trunk (crown to the crotch seen in the points,
                                            # over `recon.match.CROWN_CROTCH` statures) are not whole legs (cut from the
                                            # scan): the trunk sizes the body and the lower legs are listed
                                            # (`recon.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
                                            # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
                                            # (0 = off; chosen)
-    match_size_both: int = 1               # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
+    match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
+        metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points", "unit": "", "range": (0, 1)})
                                            # sole differs from them by more than `match_resize_tolerance`, the body is
                                            # matched at both sizes and the one explaining more points is kept: the
                                            # two measures disagree because the hips sit off along the torso's axis,
                                            # or because the body's proportions are not the standard's, and the
                                            # points tell which (a tall walker, true 1.97 m: legs 2.18 m, explains
                                            # 0.836; crown to sole 2.02 m, explains 0.86; chosen)
-    match_resized_anchor_shift: float = 0.0  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
+    match_resized_anchor_shift: float = field(default=0.0,  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
+        metadata={"help": "after sizing from the crown, hang the torso from the crown when off by more than this", "unit": "m", "range": (0, 2)})
                                            # misplaced along its axis), the next match slides the torso to hang from the
                                            # crown when it is off by more than this, m (0: always; the walker's resized
                                            # match sat 7 cm low, under `match_min_anchor_shift`; chosen)
-    match_alternatives: int = 2            # 2.3(1): other torso poses tried, best first, when the fit of the best
+    match_alternatives: int = field(default=2,  # 2.3(1): other torso poses tried, best first, when the fit of the best
+        metadata={"help": "other torso poses tried, best first, when the best one's fit fails its checks", "unit": "", "range": (0, 100)})
                                            # fails its checks (a sparse scan's coarse volume often ties an upright
                                            # torso with one tilted onto an arm; chosen)
-    match_explain_distance: float = 0.03   # 2.3(1)-(2): of the whole-body matches of the torso candidates, the one
+    match_explain_distance: float = field(default=0.03,  # 2.3(1)-(2): of the whole-body matches of the torso candidates, the one
+        metadata={"help": "a point is explained by a whole-body match within this", "unit": "m", "range": (0.001, 1)})
                                            # explaining most points within this (m) wins: on a coarse volume the
                                            # volume score ties right and wrong torsos, the points do not (chosen)
-    match_explain_points: int = 4000       # 2.3(1): points sampled (fit_seed) for that count (chosen)
-    match_alt_min_turn: float = 10.0       # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
-    fit_near_distance: float = 0.05        # 2.3(2): points this near a section surface adjust it, m
-    fit_end_threshold: float = 0.6         # 2.3(2): end points: nearer the axis than this x radius
-    fit_iterations: int = 2                # 2.3(2): rounds of point assignment and adjustment (chosen)
-    fit_section_points: int = 500          # 2.3(2): points per section per round, subsampled (chosen)
-    fit_max_shift: float = 0.04            # 2.3(2): largest axis move per round, m (chosen)
-    fit_max_turn: float = 12.0             # 2.3(2): largest axis turn per round, degrees (chosen)
-    fit_max_points: int = 30000            # 2.3(2): points used by the fine fit, subsampled (chosen)
-    fit_loss: str = "soft_l1"              # 2.3(2): least-squares loss (paper: squares; robust chosen)
-    fit_min_points: int = 30               # 2.3(2): fewer points: the section is unfitted (chosen)
-    fit_coverage_distance: float = 0.02    # 2.3(2): a point is explained within this of a surface, m (chosen)
-    fit_min_section_cover: float = 0.2     # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
-    fit_doubt_cover: float = 0.55          # 2.3(2): an arm section both this little covered and
-    fit_doubt_rms: float = 0.015           #   fitted worse than this rms (m) is not trusted: unfitted,
-    fit_doubt_min_cover: float = 0.35      #   and so is one covered less than this (chosen; 0.5 while the
+    match_explain_points: int = field(default=4000,  # 2.3(1): points sampled (fit_seed) for that count (chosen)
+        metadata={"help": "points sampled (fit_seed) to count the explained ones", "unit": "", "range": (10, 10000000)})
+    match_alt_min_turn: float = field(default=10.0,  # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
+        metadata={"help": "an alternative's torso axis is turned at least this", "unit": "deg", "range": (0, 180)})
+    fit_near_distance: float = field(default=0.05,  # 2.3(2): points this near a section surface adjust it, m
+        metadata={"help": "points this near a section's surface adjust it", "unit": "m", "range": (0.001, 1)})
+    fit_end_threshold: float = field(default=0.6,  # 2.3(2): end points: nearer the axis than this x radius
+        metadata={"help": "end points: nearer the axis than this times the radius", "unit": "", "range": (0, 10)})
+    fit_iterations: int = field(default=2,  # 2.3(2): rounds of point assignment and adjustment (chosen)
+        metadata={"help": "rounds of point assignment and adjustment", "unit": "", "range": (0, 100)})
+    fit_section_points: int = field(default=500,  # 2.3(2): points per section per round, subsampled (chosen)
+        metadata={"help": "points per section per round, subsampled", "unit": "", "range": (10, 10000000)})
+    fit_max_shift: float = field(default=0.04,  # 2.3(2): largest axis move per round, m (chosen)
+        metadata={"help": "largest axis move per round", "unit": "m", "range": (0, 1)})
+    fit_max_turn: float = field(default=12.0,  # 2.3(2): largest axis turn per round, degrees (chosen)
+        metadata={"help": "largest axis turn per round", "unit": "deg", "range": (0, 180)})
+    fit_max_points: int = field(default=30000,  # 2.3(2): points used by the fine fit, subsampled (chosen)
+        metadata={"help": "points used by the fine fit, subsampled", "unit": "", "range": (100, 100000000)})
+    fit_loss: str = field(default="soft_l1",  # 2.3(2): least-squares loss (paper: squares; robust chosen)
+        metadata={"help": "least-squares loss: linear, soft_l1, huber, cauchy or arctan (paper: squares)", "unit": "", "range": None})
+    fit_min_points: int = field(default=30,  # 2.3(2): fewer points: the section is unfitted (chosen)
+        metadata={"help": "a section with fewer points is unfitted", "unit": "", "range": (3, None)})
+    fit_coverage_distance: float = field(default=0.02,  # 2.3(2): a point is explained within this of a surface, m (chosen)
+        metadata={"help": "a point is explained within this of a section's surface", "unit": "m", "range": (0.001, 1)})
+    fit_min_section_cover: float = field(default=0.2,  # 2.3(2): fewer of a section's cells with points: unfitted (chosen)
+        metadata={"help": "a section with fewer of its cells holding points is unfitted", "unit": "", "range": (0, 1)})
+    fit_doubt_cover: float = field(default=0.55,  # 2.3(2): an arm section both this little covered and
+        metadata={"help": "an arm section covered less than this and fitted worse than fit_doubt_rms is unfitted", "unit": "", "range": (0, 1)})
+    fit_doubt_rms: float = field(default=0.015,  #   fitted worse than this rms (m) is not trusted: unfitted,
+        metadata={"help": "... fitted worse than this rms", "unit": "m", "range": (0, 1)})
+    fit_doubt_min_cover: float = field(default=0.35,  #   and so is one covered less than this (chosen; 0.5 while the
+        metadata={"help": "an arm section covered less than this is unfitted", "unit": "", "range": (0, 1)})
                                            #   head anchor moved the arms off their points, 4 cm on most
                                            #   scans: arm covers on the library rose 0.69 -> 0.77 mean
                                            #   when they stayed, the doubt cover by the same ratio)
-    reach_candidates: int = 60             # 2.3(2): an arm listed unfitted is searched again as a chain from its
-    reach_min_hand_points: int = 10        #   shoulder on the points no other section explains (`recon.reach`):
-    reach_hand_fraction: float = 0.3       #   upper-arm directions kept for the forearm's search; points needed at
-    reach_max_core_fraction: float = 0.1   #   the hand end (the last this fraction of the forearm, a radius beyond);
-    reach_min_upper_bins: int = 4          #   points inside the columns (and past the hand) allowed per surface (hand)
+    reach_candidates: int = field(default=60,  # 2.3(2): an arm listed unfitted is searched again as a chain from its
+        metadata={"help": "unfitted arm searched again from its shoulder: upper-arm directions kept for the forearm's search", "unit": "", "range": (1, 10000)})
+    reach_min_hand_points: int = field(default=10,  #   shoulder on the points no other section explains (`recon.reach`):
+        metadata={"help": "... points needed at the hand end", "unit": "", "range": (0, None)})
+    reach_hand_fraction: float = field(default=0.3,  #   upper-arm directions kept for the forearm's search; points needed at
+        metadata={"help": "... the hand end: the last this fraction of the forearm", "unit": "", "range": (0, 1)})
+    reach_max_core_fraction: float = field(default=0.1,  #   the hand end (the last this fraction of the forearm, a radius beyond);
+        metadata={"help": "... points inside the columns allowed per surface point", "unit": "", "range": (0, 100)})
+    reach_min_upper_bins: int = field(default=4,  #   points inside the columns (and past the hand) allowed per surface (hand)
+        metadata={"help": "... fifths of the upper arm holding points", "unit": "", "range": (0, 5)})
                                            #   point; fifths of the upper arm holding points. Measured on arms_forward
                                            #   (arms held forward, seen end-on; 10 mm, k = 1, 2, 3): the true arms hold
                                            #   18-37 points at the hand end, 0-5 in the core, their upper arms 4-5 fifths
                                            #   with points; with 3 fifths an arm was laid along the upper back (the chest
                                            #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
                                            #   the true direction (chosen)
-    reach_back_clearance: float = 0.1      # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
+    reach_back_clearance: float = field(default=0.1,  # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
+        metadata={"help": "... a hand behind the trunk nearer its columns than this is not taken", "unit": "m", "range": (0, 2)})
                                            #   taken (the back's own surface, 5-7 cm outside the fitted chest at the
                                            #   shoulder blades, took a cut forearm's place on standing; chosen)
-    reach_max_halo_fraction: float = 0.25  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
+    reach_max_halo_fraction: float = field(default=0.25,  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
+        metadata={"help": "... free points around the upper arm allowed per point on its surface", "unit": "", "range": (0, 100)})
                                            #   its axis) allowed per point on its surface: a limb stands apart, a patch
                                            #   of trunk the fitted torso misses spreads around a column laid on it.
                                            #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
                                            #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
                                            #   (chosen)
-    reach_max_shared_fraction: float = 0.5  # 2.3(2): ... and not taken when more than this fraction of the points
+    reach_max_shared_fraction: float = field(default=0.5,  # 2.3(2): ... and not taken when more than this fraction of the points
+        metadata={"help": "... not taken when more than this fraction of its points lie on another section", "unit": "", "range": (0, 1)})
                                            #   either found section is nearest to lie within fit_coverage_distance of
                                            #   another section's surface (a limb explains points no other explains).
                                            #   Measured (10 mm): found arms of arms_forward k1/k3 and cut scans at most
                                            #   0.12; a "forearm" found on the other forearm and the chest 0.77 (chosen)
-    fit_leg_seen_cover: float = 0.4        # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
-    fit_leg_seen_rms: float = 0.012        #   the front and above: no inside voxels) is kept when its fitted surface's
+    fit_leg_seen_cover: float = field(default=0.4,  # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
+        metadata={"help": "a leg section in empty voxels is kept when its cells hold points at least this much", "unit": "", "range": (0, 1)})
+    fit_leg_seen_rms: float = field(default=0.012,  #   the front and above: no inside voxels) is kept when its fitted surface's
+        metadata={"help": "... and it fits them within this rms", "unit": "m", "range": (0, 1)})
                                            #   cells hold points at least this much and it fits them within this rms
                                            #   (m): the points show the limb the volume missed. Measured: the raised
                                            #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched
                                            #   into a gap 0.35-0.40 / 14-17 mm (chosen)
-    fit_arm_clearance: float = 0.7         # 2.3(2): an arm section whose axis comes nearer the trunk's fitted columns
+    fit_arm_clearance: float = field(default=0.7,  # 2.3(2): an arm section whose axis comes nearer the trunk's fitted columns
+        metadata={"help": "an arm's axis nearer the trunk's columns than this many of its radii: unfitted", "unit": "radii", "range": (0, 100)})
                                            #   than this many model radii of it (a forearm at 0.25 to 1 of its
                                            #   length, an upper arm, which starts at the shoulder, at 0.75 and 1) is
                                            #   unfitted: an arm against the body keeps its axis a radius outside the
@@ -614,66 +735,86 @@ class FitParams:
                                            #   real forearms 2.2 radii and more (arm_across, arms_close), upper arms
                                            #   1.3 (heavy_standing); arm sections placed on the trunk of scans without
                                            #   them 0.4 and less (chosen)
-    fit_max_unfitted: int = 4              # 2.3(2): more sections unfitted (two arms' worth): the posture was not
+    fit_max_unfitted: int = field(default=4,  # 2.3(2): more sections unfitted (two arms' worth): the posture was not
+        metadata={"help": "more sections unfitted: the posture was not found", "unit": "", "range": (0, 11)})
                                            # found (on the library, fits with 5 or more were wrong; chosen)
-    fit_min_coverage: float = 0.6          # 2.3(2): fewer points explained: not a body (chosen)
-    match_head_max_side: float = 55.0      # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
+    fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
+        metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
+    match_head_max_side: float = field(default=55.0,  # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
+        metadata={"help": "the head's coarse axis leans at most this far sideways from the chest's", "unit": "deg", "range": (0, 180)})
                                            # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees
                                            # sideways (its range of lateral flexion), 10 more for the chest's own error;
                                            # front and back it keeps the 70 degree cone. Measured: a child's raised arm
                                            # beside the head took the head at 69 degrees (child_arms_raised k2, k3 at 10 mm:
                                            # 7.8 / 8.2 cm median -> 2.7 / 2.8); 45 let a_pose k1 pick a wrong size (chosen)
-    fit_anchor_min_stature: float = 1.5    # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
-    fit_anchor_max_shift: float = 0.04     # 2.3(2): the neck and head follow the crown this much further than the
+    fit_anchor_min_stature: float = field(default=1.5,  # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
+        metadata={"help": "anchor on the crown only for bodies at least this tall", "unit": "m", "range": (0, 3)})
+    fit_anchor_max_shift: float = field(default=0.04,  # 2.3(2): the neck and head follow the crown this much further than the
+        metadata={"help": "the neck and head follow the crown this much further than the torso", "unit": "m", "range": (0, 1)})
                                            # torso (fit_max_shift), the chest stretching, m. Measured on the library
                                            # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
                                            # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
-    fit_arm_size_tolerance: float = 0.1    # 2.3(2): a nearly straight arm whose shoulder-to-wrist (wrist from the seen
+    fit_arm_size_tolerance: float = field(default=0.1,  # 2.3(2): a nearly straight arm whose shoulder-to-wrist (wrist from the seen
+        metadata={"help": "a straight arm off the model's length by more than this ratio gets its elbow at the model's proportion", "unit": "", "range": (0, 10)})
                                            # fingertips) differs from the model's arm by more than this ratio has its elbow
                                            # placed at the model's proportion of the measured arm, not the model's upper-arm
                                            # length from the shoulder: the body's size was misjudged. Measured on the library
                                            # (k = 1, 3, 10 mm): elbow error mean 2.5 -> 2.3 cm, median 1.9 -> 1.9, a child
                                            # matched at 1.20 m 6.9 -> under 4.8; 0 (always) gave median 2.2 (chosen)
-    fit_facing: int = 4                    # 2.1: fit the cloud turned about the vertical to a facing read from its own
+    fit_facing: int = field(default=4,  # 2.1: fit the cloud turned about the vertical to a facing read from its own
+        metadata={"help": "fit the cloud turned to its own facing, retried in 360/this degree steps (0 = as it lies)", "unit": "", "range": (0, 36)})
                                            # shape (`recon.posture.facing_frame`), so that a scan turned about the
                                            # vertical gets the same fit, turned; when refused or with fit_facing_retry
                                            # sections unfitted, also turned further in 360 / fit_facing degree steps,
                                            # the best fit kept (`recon.posture._fit_facings`); 0 = fit the cloud as it
                                            # lies (chosen; measured in the module docstring of recon.posture)
-    fit_facing_retry: int = 3              # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
+    fit_facing_retry: int = field(default=3,  # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
+        metadata={"help": "this many sections unfitted: try the other facings too", "unit": "", "range": (0, 11)})
                                            # its way; a scan missing one limb is not fitted again, each try being a
                                            # chance to place the limb on points not its own; chosen)
-    fit_facing_reverse: int = 1            # 2.1: 1 = fit the reverse facing (turned 180 degrees) too and keep the fit that
+    fit_facing_reverse: int = field(default=1,  # 2.1: 1 = fit the reverse facing (turned 180 degrees) too and keep the fit that
+        metadata={"help": "1 = also fit the reverse facing and keep the fit explaining more points", "unit": "", "range": (0, 1)})
                                            # explains more points when both list the same sections unfitted (front and
                                            # back are the facing's least sure part; measured on 126 library scans at
                                            # 10 mm: 116 -> 117 met issue 4's targets, 2 -> 1 wrong (a heavy body turned
                                            # 30 degrees in the scanner, matched 17 cm low); the fit takes twice as long;
                                            # chosen)
-    fit_facing_margin: float = 0.02        # 2.1: ... the reverse fit is kept only when it explains at least this larger
+    fit_facing_margin: float = field(default=0.02,  # 2.1: ... the reverse fit is kept only when it explains at least this larger
+        metadata={"help": "the reverse fit is kept only when it explains at least this larger fraction of the points", "unit": "", "range": (0, 1)})
                                            # fraction of the points (two right fits of one scan differ by up to 0.13,
                                            # two near-ties with one fit wrong by 0.002 and 0.011; chosen)
-    fit_facing_band: float = 0.70          # 2.1: the facing is read from the points between this and
-    fit_facing_band_top: float = 0.85      #   this fraction of the cloud's height (the shoulders), where the widest
+    fit_facing_band: float = field(default=0.70,  # 2.1: the facing is read from the points between this and
+        metadata={"help": "the facing is read from the points between this and fit_facing_band_top of the height", "unit": "", "range": (0, 1)})
+    fit_facing_band_top: float = field(default=0.85,  #   this fraction of the cloud's height (the shoulders), where the widest
+        metadata={"help": "upper end of that band, fraction of the height", "unit": "", "range": (0, 1)})
                                            # horizontal spread is across the body (chosen)
-    fit_stature: float = 0.0               # 2.1: body stature, m; 0 = estimate it from the cloud
-    fit_seed: int = 0                      # random subsampling seed
+    fit_stature: float = field(default=0.0,  # 2.1: body stature, m; 0 = estimate it from the cloud
+        metadata={"help": "body stature; 0 = estimate it from the cloud", "unit": "m", "range": (0, 3)})
+    fit_seed: int = field(default=0,  # random subsampling seed
+        metadata={"help": "seed of the random subsampling", "unit": "", "range": (0, None)})
+
+    def __post_init__(self):
+        check_fields(self, ReconError)
+        _check(self.fit_loss in FIT_LOSSES, "fit_loss", self.fit_loss, f"one of {', '.join(FIT_LOSSES)}")
+        _check(self.voxel_min <= self.voxel_max, "voxel_min", self.voxel_min,
+               f"at most voxel_max ({self.voxel_max:g} m)")
+        _check(self.fit_facing_band < self.fit_facing_band_top, "fit_facing_band", self.fit_facing_band,
+               f"below fit_facing_band_top ({self.fit_facing_band_top:g})")
+        _check(self.match_min_anchor_shift <= self.match_max_anchor_shift, "match_min_anchor_shift",
+               self.match_min_anchor_shift, f"at most match_max_anchor_shift ({self.match_max_anchor_shift:g} m)")
 
     @classmethod
     def from_strings(cls, pairs) -> "FitParams":
         """Build from ``["name=value", ...]`` (the CLI's ``--param``); raise `ReconError` on a bad one."""
-        types = {f.name: f.type for f in fields(cls)}
+        known = {f.name: f for f in fields(cls)}
         kw = {}
         for pair in pairs or ():
             name, sep, value = pair.partition("=")
             name = name.strip()
-            if not sep or name not in types:
+            if not sep or name not in known:
                 raise ReconError(f"--param {pair!r}: expected name=value with name one of "
-                                 f"{', '.join(types)}")
-            conv = {"float": float, "int": int, "str": str}[types[name]]
-            try:
-                kw[name] = conv(value)
-            except ValueError:
-                raise ReconError(f"--param {pair!r}: {value!r} is not a {types[name]}") from None
+                                 f"{', '.join(known)}")
+            kw[name] = coerce(known[name], value, ReconError)
         return cls(**kw)
 
 
@@ -726,8 +867,7 @@ class ReconParams:
                 known = ", ".join(sorted(owner))
                 raise ReconError(f"unknown parameter {name!r} (known: {known})")
             stage = owner[name]
-            current = getattr(stages[stage], name)
-            changes[stage][name] = _convert(name, value, current)
+            changes[stage][name] = coerce(_field(type(stages[stage]), name), value, ReconError)
         built = {}
         for stage, obj in stages.items():
             try:
@@ -739,38 +879,16 @@ class ReconParams:
         return cls(**built)
 
 
-def _convert(name, value, current):
-    """``value`` converted to the type of the field's default ``current``."""
-    if isinstance(value, str):
-        text = value.strip()
-        try:
-            if isinstance(current, bool):
-                if text.lower() in ("1", "true", "yes", "on"):
-                    return True
-                if text.lower() in ("0", "false", "no", "off"):
-                    return False
-                raise ValueError
-            if isinstance(current, int):
-                return int(text)
-            if isinstance(current, float) or current is None:
-                return float(text)
-            if isinstance(current, tuple):
-                return tuple(float(x) for x in text.split(","))
-        except ValueError:
-            raise ReconError(f"parameter {name}={value!r}: expected a {type(current).__name__}") from None
-        return text
-    if isinstance(current, bool):
-        if not isinstance(value, (bool, int)):
-            raise ReconError(f"parameter {name}={value!r}: expected a bool")
-        return bool(value)
-    if isinstance(current, int) and not isinstance(current, bool):
-        if isinstance(value, float) and value.is_integer():
-            value = int(value)
-        if not isinstance(value, int) or isinstance(value, bool):
-            raise ReconError(f"parameter {name}={value!r}: expected an integer")
-        return value
-    if isinstance(current, float):
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ReconError(f"parameter {name}={value!r}: expected a number")
-        return float(value)
-    return value
+def stage_help(stages=("fit", "cluster", "surface")) -> str:
+    """The ``--param help`` text of the reconstruction's parameters, grouped by stage."""
+    from bodyscan._params import param_help
+
+    titles = {"fit": ("fit: posture estimation (paper section 2)", FitParams),
+              "cluster": ("cluster: clustering into body sections (paper section 3)", ClusterParams),
+              "surface": ("surface: per-section Delaunay surfaces (paper section 3.3)", SurfaceParams)}
+    return param_help(dict(titles[s] for s in stages))
+
+
+def _field(cls, name):
+    """The dataclass field ``name`` of ``cls``."""
+    return next(f for f in fields(cls) if f.name == name)

@@ -19,9 +19,6 @@ CLOSE_UP_HALF = 0.14  # metres
 
 def register(sub) -> None:
     """Add ``bodyscan reconstruct`` to the subparsers ``sub``."""
-    from .params import ReconParams
-
-    names = ", ".join(f"{k}={v}" for k, v in ReconParams().to_dict().items())
     p = sub.add_parser(
         "reconstruct", help="reconstruct a body surface from a point cloud (paper section 3)",
         description="Reconstruct the body surface of a point cloud: posture estimation (or --fit), "
@@ -37,8 +34,9 @@ def register(sub) -> None:
     p.add_argument("--preview", metavar="PNG", help="also draw the mesh coloured by section: front, "
                    "side, back, and close-ups of the armpits and crotch")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help=f"set a parameter (repeatable). Names and defaults: {names}. See "
-                        "recon/params.py for units and the paper's values")
+                   help="set a reconstruction parameter (repeatable); `--param help` lists them all, "
+                        "by stage, with default, unit, range and meaning (recon/params.py explains "
+                        "the choices)")
     p.add_argument("--fit", metavar="FIT.json", help="use this fitted model (the JSON written by "
                    "`bodyscan fit`) instead of estimating the posture")
     p.set_defaults(func=run)
@@ -94,7 +92,13 @@ def run(args) -> int:
     from .pipeline import reconstruct
 
     from bodyscan._io import check_out
+    from bodyscan._params import wants_help
 
+    if wants_help(args.param):
+        from .params import stage_help
+
+        print(stage_help())
+        return 0
     params = ReconParams.from_overrides(parse_params(args.param))
     out = check_out(args.out, suffixes=(".ply",), error=ReconError)
     if args.preview:

@@ -84,7 +84,7 @@ def register(sub) -> None:
     p.add_argument("--seed", type=int, default=0, help="seed of noise, outliers and misalignment (default: 0)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                    help="set any ScannerConfig field by name (JSON value), e.g. --param "
-                        "laser_angle_deg=20; repeatable; applied last")
+                        "laser_angle_deg=20; repeatable; applied last; `--param help` lists them")
     p.add_argument("--preview", default=None, metavar="PNG",
                    help="also save a picture of the cloud (front, side, back) over the body's silhouette")
     p.add_argument("--quiet", "-q", action="store_true", help="no summary on stderr")
@@ -151,9 +151,14 @@ def _scan(args) -> int:
     from .scan import scan
 
     from bodyscan._io import check_out
+    from bodyscan._params import param_help, wants_help
 
     from . import ScanError
+    from .config import Head, ScannerConfig
 
+    if wants_help(args.param):
+        print(param_help({"scanner (ScannerConfig)": ScannerConfig, "each head (Head; --param heads=[{...}])": Head}))
+        return 0
     config = build_config(args)
     check_out(args.out, error=ScanError)
     if args.preview:

@@ -18,6 +18,8 @@ import math
 import numbers
 from dataclasses import dataclass, field
 
+from bodyscan._params import check_fields
+
 from . import ScanError
 
 PROJECTIONS = ("parallel", "perspective")
@@ -56,16 +58,23 @@ class Head:
         scanners), 180 = below, 90 = to the camera's right, 270 = to its left.
     """
 
-    name: str = "front"
-    azimuth_deg: float = 0.0
-    height: float = 1.1
-    tilt_deg: float = 0.0
-    field_width: float = 2.6
-    field_height: float = 2.6
-    laser_roll_deg: float = 0.0
+    name: str = field(default="front", metadata={"help": "label of the head", "unit": "", "range": None})
+    azimuth_deg: float = field(default=0.0,
+        metadata={"help": "where the camera stands around the axis, counter-clockwise from the front (180 = behind)", "unit": "deg", "range": (-360, 360)})
+    height: float = field(default=1.1,
+        metadata={"help": "height of the optical axis at the scanner axis", "unit": "m", "range": (-10, 10)})
+    tilt_deg: float = field(default=0.0,
+        metadata={"help": "elevation of the optical axis", "unit": "deg", "range": (-89, 89)})
+    field_width: float = field(default=2.6,
+        metadata={"help": "image width at the scanner axis", "unit": "m", "range": (0.001, 100)})
+    field_height: float = field(default=2.6,
+        metadata={"help": "image height at the scanner axis", "unit": "m", "range": (0.001, 100)})
+    laser_roll_deg: float = field(default=0.0,
+        metadata={"help": "laser side about the optical axis: 0 above, 180 below, 90 right, 270 left", "unit": "deg", "range": (-360, 360)})
 
     def __post_init__(self):
         object.__setattr__(self, "name", str(self.name))
+        check_fields(self, ScanError)
         for f in ("azimuth_deg", "height", "tilt_deg", "field_width", "field_height", "laser_roll_deg"):
             _set_number(self, f, f"head {self.name!r}: {f}")
         if self.field_width <= 0 or self.field_height <= 0:
@@ -152,24 +161,41 @@ class ScannerConfig:
         Seed of every random choice (noise, outliers, misalignment).
     """
 
-    projection: str = "parallel"          # paper 4.1: synthetic data, cameras front and rear
-    laser_angle_deg: float = 15.0         # paper 4.1: k * pi / 12, k = 1
-    resolution: float = 0.010             # paper 4.1: about 10 mm on the body surface
-    heads: tuple = field(default_factory=lambda: head_layout("front_rear"))  # paper 4.1
-    camera_distance: float = 2.0          # not in the paper (a typical booth)
-    noise_sigma: float = 0.0              # paper 4.3: the real scanner had 1.0 mm error
-    outlier_fraction: float = 0.0         # paper 4.3 mentions noise removed by hand; off
-    outlier_spread: float = 0.05
-    misalign_deg: float = 0.0             # paper 5: camera overlap/shift left open; off
-    misalign_mm: float = 0.0
-    max_incidence_deg: float = 90.0       # paper: visible and lit, nothing more
-    center_on_body: bool = True
-    seed: int = 0
+    projection: str = field(default="parallel",  # paper 4.1: synthetic data, cameras front and rear
+        metadata={"help": "camera and laser model: parallel (paper) or perspective", "unit": "", "range": None})
+    laser_angle_deg: float = field(default=15.0,  # paper 4.1: k * pi / 12, k = 1
+        metadata={"help": "laser angle from the camera's optical axis (paper: k * 15)", "unit": "deg", "range": (-89.9, 89.9)})
+    resolution: float = field(default=0.010,  # paper 4.1: about 10 mm on the body surface
+        metadata={"help": "sample spacing on the body", "unit": "m", "range": (0.0001, 1)})
+    heads: tuple = field(default_factory=lambda: head_layout("front_rear"),  # paper 4.1
+        metadata={"help": "cameras with lasers: a layout name (front_rear, two_towers, four_towers, front) or a list of heads", "unit": "", "range": None})
+    camera_distance: float = field(default=2.0,  # not in the paper (a typical booth)
+        metadata={"help": "perspective: pinhole distance from the scanner axis", "unit": "m", "range": (0.01, 1000)})
+    noise_sigma: float = field(default=0.0,  # paper 4.3: the real scanner had 1.0 mm error
+        metadata={"help": "standard deviation of range noise along the camera ray", "unit": "m", "range": (0, 1)})
+    outlier_fraction: float = field(default=0.0,  # paper 4.3 mentions noise removed by hand; off
+        metadata={"help": "fraction of each head's points moved along their ray", "unit": "", "range": (0, 1)})
+    outlier_spread: float = field(default=0.05,
+        metadata={"help": "largest outlier offset", "unit": "m", "range": (0, 10)})
+    misalign_deg: float = field(default=0.0,  # paper 5: camera overlap/shift left open; off
+        metadata={"help": "per-head rotation about a random axis", "unit": "deg", "range": (0, 180)})
+    misalign_mm: float = field(default=0.0,
+        metadata={"help": "per-head shift in a random direction", "unit": "mm", "range": (0, 10000)})
+    max_incidence_deg: float = field(default=90.0,  # paper: visible and lit, nothing more
+        metadata={"help": "drop points seen or lit more obliquely than this from the normal (90 keeps all)", "unit": "deg", "range": (0.01, 90)})
+    center_on_body: bool = field(default=True,
+        metadata={"help": "scanner axis through the body's centre (else through the origin)", "unit": "", "range": None})
+    seed: int = field(default=0,
+        metadata={"help": "seed of noise, outliers and misalignment", "unit": "", "range": (0, None)})
 
     def __post_init__(self):
         if self.projection not in PROJECTIONS:
             raise ScanError(f"projection must be one of {', '.join(PROJECTIONS)}, got {self.projection!r}")
-        heads = tuple(Head(**h) if isinstance(h, dict) else h for h in self.heads)
+        heads = head_layout(self.heads) if isinstance(self.heads, str) else self.heads
+        if not isinstance(heads, (list, tuple)):
+            raise ScanError(f"heads must be a layout name ({', '.join(HEAD_LAYOUTS)}) or a list of heads, "
+                            f"got {heads!r}")
+        heads = tuple(_head(h) for h in heads)
         if not heads or not all(isinstance(h, Head) for h in heads):
             raise ScanError("heads must be a non-empty sequence of simulator.Head")
         if len({h.name for h in heads}) != len(heads):
@@ -177,13 +203,13 @@ class ScannerConfig:
         if len(heads) > 255:
             raise ScanError("at most 255 heads")
         object.__setattr__(self, "heads", heads)
+        check_fields(self, ScanError)
         for name in ("laser_angle_deg", "resolution", "camera_distance", "noise_sigma", "outlier_fraction",
                      "outlier_spread", "misalign_deg", "misalign_mm", "max_incidence_deg"):
             _set_number(self, name, f"scanner {name}")
         if not isinstance(self.seed, numbers.Integral) or isinstance(self.seed, bool) or self.seed < 0:
             raise ScanError(f"seed must be a non-negative integer, got {self.seed!r}")
         object.__setattr__(self, "seed", int(self.seed))
-        object.__setattr__(self, "center_on_body", bool(self.center_on_body))
         checks = (
             ("laser_angle_deg", -89.9 < self.laser_angle_deg < 89.9, "within (-90, 90) degrees"),
             ("resolution", self.resolution > 0, "positive metres"),
@@ -235,12 +261,30 @@ class ScannerConfig:
         return cls(**d)
 
 
+def _head(h) -> Head:
+    """A `Head` from a Head or a dict of its fields; anything else raises `ScanError`."""
+    if isinstance(h, Head):
+        return h
+    if not isinstance(h, dict):
+        raise ScanError(f"heads: each head is a mapping of Head fields, got {h!r}")
+    known = {f.name for f in dataclasses.fields(Head)}
+    unknown = sorted(set(h) - known)
+    if unknown:
+        raise ScanError(f"heads: unknown head field(s) {', '.join(map(str, unknown))} "
+                        f"(known: {', '.join(sorted(known))})")
+    return Head(**h)
+
+
 def _resolve_k(changes: dict) -> dict:
     changes = dict(changes)
     if "k" in changes:
         k = changes.pop("k")
         if k is not None:
-            changes["laser_angle_deg"] = 15.0 * float(k)
+            try:
+                k = float(k)
+            except (TypeError, ValueError):
+                raise ScanError(f"k={k!r}: expected a number (the laser angle in units of 15 degrees)") from None
+            changes["laser_angle_deg"] = 15.0 * k
     return changes
 
 
