@@ -597,6 +597,11 @@ def report_command(args) -> int:
     if args.update_baseline:
         check_out(args.baseline, option="--baseline", error=BenchError)
     table = store.read()
+    aside = store.quarantined()
+    if aside:
+        print(f"report: {len(aside)} damaged result part(s) set aside in {store.quarantine} "
+              f"(rerun the sweep to redo them); reporting on the {len(table)} other job(s)",
+              file=sys.stderr)
     gate = None
     if args.baseline and not args.update_baseline:
         if not Path(args.baseline).is_file():

@@ -7,6 +7,7 @@ Layout of a sweep folder ``DIR``::
     DIR/parts/<job>.parquet  one row per finished job (metrics, or the error and its traceback)
     DIR/results.parquet      all parts in one table: a cache rebuilt from the parts (safe to delete)
     DIR/meshes/<job>.npz     reconstructed meshes kept for pictures (see `ResultStore.put_mesh`)
+    DIR/quarantine/          parts that could not be read, set aside (their jobs count as not done)
 
 Every file is written to a temporary name in the same folder, flushed to disk, then renamed over
 its final name (``os.replace``, atomic on POSIX): a reader, or a sweep killed at any instant, sees a
@@ -29,6 +30,7 @@ import json
 import math
 import os
 import re
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -39,6 +41,10 @@ BASE_COLUMNS = ("job_id", "scan_id", "body", "seed", "method", "status", "error"
 
 _SIG = "_part_signature"   # column of results.parquet: the part's "size:mtime_ns"
 _JOB_ID = re.compile(r"^[0-9a-zA-Z_-]{1,128}$")
+
+
+class StoreWarning(UserWarning):
+    """A damaged part was set aside."""
 
 
 class ResultStore:
@@ -54,6 +60,7 @@ class ResultStore:
         self.root = Path(root)
         self.parts = self.root / "parts"
         self.meshes = self.root / "meshes"
+        self.quarantine = self.root / "quarantine"
 
     # -- writing ------------------------------------------------------------------------------
 
@@ -122,12 +129,11 @@ class ResultStore:
     def finished(self, *, include_failed: bool = True) -> set[str]:
         """Ids of the jobs whose parts exist (with ``include_failed=False``, only those that
         succeeded)."""
-        if not self.parts.is_dir():
+        if not self.parts.is_dir() or not self._listing():
             return set()
-        ids = set(self._listing())
-        if include_failed or not ids:
-            return ids
-        table = self.read(columns=["job_id", "status"])
+        table = self.read(columns=["job_id", "status"])   # sets damaged parts aside
+        if include_failed:
+            return set(table["job_id"]) if "job_id" in table.columns else set()
         return set(table.loc[table["status"] == "ok", "job_id"])
 
     def read(self, columns=None, *, compact: bool = True):
@@ -162,9 +168,15 @@ class ResultStore:
             have = {i for i, k in zip(ids, keep) if k}
             tables.append(cached)
         new = [stem for stem in listing if stem not in have]
-        for stem in new:
-            table = pq.ParquetFile(self.parts / f"{stem}.parquet").read()
+        for stem in list(new):
+            table = self._read_part(stem)
+            if table is None:
+                new.remove(stem)
+                continue
             tables.append(table.append_column(_SIG, pa.array([listing[stem]], pa.string())))
+        if not tables:
+            raise FileNotFoundError(f"{self.root}: no readable sweep results here (every part was set "
+                                    f"aside in {self.quarantine}; run `bodyscan sweep` again)")
         table = pa.concat_tables(tables, promote_options="permissive")
         if compact and (new or len(table) != (cached.num_rows if cached is not None else -1)):
             try:
@@ -177,6 +189,35 @@ class ResultStore:
             frame = frame[[c for c in columns if c in frame.columns]]
         return frame.sort_values("job_id", kind="stable").reset_index(drop=True) \
             if "job_id" in frame.columns else frame
+
+    def _read_part(self, stem: str):
+        """The table of part ``stem``, or None after moving an unreadable part to quarantine/."""
+        import pyarrow.parquet as pq
+
+        path = self.parts / f"{stem}.parquet"
+        try:
+            table = pq.ParquetFile(path).read()
+            ids = table.column("job_id").to_pylist() if "job_id" in table.column_names else []
+            if ids != [stem]:
+                raise ValueError(f"holds job ids {ids[:3]}, expected [{stem!r}]")
+            return table
+        except FileNotFoundError:      # removed meanwhile
+            return None
+        except Exception as exc:       # damaged: truncated, not Parquet, wrong content
+            self.quarantine.mkdir(parents=True, exist_ok=True)
+            target = self.quarantine / path.name
+            try:
+                os.replace(path, target)
+            except OSError:
+                target = path           # a read-only store: skip the part, leave it
+            warnings.warn(f"{path}: unreadable result part ({type(exc).__name__}: "
+                          f"{' '.join(str(exc).split())[:160]}) set aside as {target}; its job "
+                          "counts as not done", StoreWarning, stacklevel=3)
+            return None
+
+    def quarantined(self) -> list[str]:
+        """Names of the parts set aside as unreadable."""
+        return sorted(p.name for p in self.quarantine.glob("*.parquet")) if self.quarantine.is_dir() else []
 
     def _listing(self) -> dict:
         """{job id: "size:mtime_ns"} of the finished parts."""

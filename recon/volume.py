@@ -107,8 +107,9 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
 
     points = np.asarray(points, dtype=np.float64)
     lo = points.min(axis=0) - pad * size
+    shape = tuple(int(s) for s in np.floor((points.max(axis=0) - lo) / size) + pad + 1)
+    require_voxels(shape, size)
     idx = np.floor((points - lo) / size).astype(np.int64)
-    shape = tuple(int(s) for s in idx.max(axis=0) + pad + 1)
     contour = np.zeros(shape, dtype=bool)
     contour[idx[:, 0], idx[:, 1], idx[:, 2]] = True
     closed = ndimage.binary_closing(contour, structure=np.ones((3, 3, 3), bool), border_value=0)
@@ -122,6 +123,23 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
     filled |= planes >= min_planes
     inside = filled & ~contour
     return Volume(origin=lo + 0.5 * size, size=float(size), contour=contour, inside=inside)
+
+
+#: Peak bytes per voxel of `voxelize` and the volume match that follows (the inside test's
+#: int64 running maxima and minima along each axis dominate; measured, see `require_voxels`).
+BYTES_PER_VOXEL = 48
+
+
+def require_voxels(shape, size: float) -> None:
+    """Refuse (`ReconError`, one line) a voxel grid of ``shape`` that cannot fit in memory."""
+    from bodyscan._resources import require_memory
+
+    from . import ReconError
+
+    n = float(np.prod(np.asarray(shape, dtype=np.float64)))
+    require_memory(n * BYTES_PER_VOXEL, f"a voxel grid of {' x '.join(map(str, shape))} voxels of "
+                   f"{1000 * size:g} mm", "raise voxel_min/voxel_max (--param voxel_min=0.01)",
+                   error=ReconError)
 
 
 def _blocked_both_ways(mask: np.ndarray, axis: int, steps: int) -> np.ndarray:

@@ -17,6 +17,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bodyscan._resources import require_memory
+
 from . import ScanError
 from .config import Head, ScannerConfig, preset
 from .raycast import RayCaster
@@ -27,6 +29,13 @@ RAY_OFFSET = 2e-5
 
 #: Camera-ray results a `Scanner` keeps (one per head geometry and resolution), oldest dropped first.
 CAMERA_CACHE_SIZE = 16
+#: Memory model of a scan (`Scanner.memory_estimate`), bytes: per camera ray of the largest head
+#: (origins, Embree's output, the hit selection), per hit kept (the head's rays, then the cloud and
+#: its PLY record), and the fraction of a head's bounding-box rays that hit the body (measured on
+#: the library: 0.35-0.5).
+BYTES_PER_RAY = 60
+BYTES_PER_HIT = 220
+HIT_FRACTION = 0.6
 
 #: Coordinates larger than this (metres) mean the mesh is not in metres.
 MAX_EXTENT_M = 3.0
@@ -187,24 +196,8 @@ class Scanner:
             return self._camera_cache[key]
         res, dist = config.resolution, config.camera_distance
         o_img, axis, up, right = head_frame(head, center)
-        rel = self.body.vertices - o_img
-        if perspective:
-            cam = o_img - dist * axis
-            rel = self.body.vertices - cam
-            depth = rel @ axis
-            if depth.min() < 0.05 * dist:
-                raise ScanError(f"the body reaches the camera of head {head.name!r} "
-                                f"({dist:g} m from the scanner axis): increase camera_distance")
-            pu, pv = dist * (rel @ right) / depth, dist * (rel @ up) / depth
-        else:
-            pu, pv = rel @ right, rel @ up
+        rel, cam, pu, pv, nw, nh, i, j = self._pixels(head, config, center)
         in_field = (np.abs(pu) <= head.field_width / 2) & (np.abs(pv) <= head.field_height / 2)
-        nw = max(1, int(math.floor(head.field_width / res + 1e-9)))
-        nh = max(1, int(math.floor(head.field_height / res + 1e-9)))
-        i = np.arange(max(0, math.ceil(pu.min() / res + nw / 2 - 0.5)),
-                      min(nw - 1, math.floor(pu.max() / res + nw / 2 - 0.5)) + 1)
-        j = np.arange(min(nh - 1, math.floor(pv.max() / res + nh / 2 - 0.5)),
-                      max(0, math.ceil(pv.min() / res + nh / 2 - 0.5)) - 1, -1)   # top row first
         # pixel grid, top row first, built in float32 with one (rows, cols, 3) allocation
         u = ((i + 0.5 - nw / 2) * res)[:, None] * right
         w = ((j + 0.5 - nh / 2) * res)[:, None] * up
@@ -239,6 +232,39 @@ class Scanner:
             self._camera_cache.pop(next(iter(self._camera_cache)))
         self._camera_cache[key] = (rays, in_field)
         return rays, in_field
+
+    def _pixels(self, head: Head, config: ScannerConfig, center: np.ndarray):
+        """The body's vertices in ``head``'s image (pu, pv, metres on the plane through the axis)
+        and the pixel columns ``i`` and rows ``j`` (top first) covering its bounding box."""
+        res, dist = config.resolution, config.camera_distance
+        o_img, axis, up, right = head_frame(head, center)
+        rel, cam = self.body.vertices - o_img, None
+        if config.projection == "perspective":
+            cam = o_img - dist * axis
+            rel = self.body.vertices - cam
+            depth = rel @ axis
+            if depth.min() < 0.05 * dist:
+                raise ScanError(f"the body reaches the camera of head {head.name!r} "
+                                f"({dist:g} m from the scanner axis): increase camera_distance")
+            pu, pv = dist * (rel @ right) / depth, dist * (rel @ up) / depth
+        else:
+            pu, pv = rel @ right, rel @ up
+        nw = max(1, int(math.floor(head.field_width / res + 1e-9)))
+        nh = max(1, int(math.floor(head.field_height / res + 1e-9)))
+        i = np.arange(max(0, math.ceil(pu.min() / res + nw / 2 - 0.5)),
+                      min(nw - 1, math.floor(pu.max() / res + nw / 2 - 0.5)) + 1)
+        j = np.arange(min(nh - 1, math.floor(pv.max() / res + nh / 2 - 0.5)),
+                      max(0, math.ceil(pv.min() / res + nh / 2 - 0.5)) - 1, -1)   # top row first
+        return rel, cam, pu, pv, nw, nh, i, j
+
+    def memory_estimate(self, config: ScannerConfig) -> tuple[int, int]:
+        """(bytes, camera rays): the estimated peak memory of `scan` with ``config`` above the
+        process's size before it, from the camera rays over the body's bounding box in each head."""
+        center = self._center(config)
+        rays = [self._pixels(h, config, center) for h in config.heads]
+        counts = [max(0, len(r[6])) * max(0, len(r[7])) for r in rays]
+        total = sum(counts)
+        return int(BYTES_PER_RAY * max(counts, default=0) + BYTES_PER_HIT * HIT_FRACTION * total), total
 
     # -- laser -------------------------------------------------------------------------------
     def _lit(self, rays: _HeadRays, head: Head, config: ScannerConfig, center: np.ndarray) -> np.ndarray:
@@ -299,6 +325,9 @@ class Scanner:
             raise ScanError(f"config must be a ScannerConfig, got {type(config).__name__}")
         if seed is not None:
             config = config.replace(seed=int(seed))
+        need, n_rays = self.memory_estimate(config)
+        require_memory(need, f"{len(config.heads)} head(s) x {n_rays / max(1, len(config.heads)):,.0f} camera "
+                       f"rays at {1000 * config.resolution:g} mm", "use a coarser resolution", error=ScanError)
         rays0 = self.caster.n_rays
         center = self._center(config)
         heads = []

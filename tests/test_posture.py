@@ -82,7 +82,7 @@ def test_params_from_strings():
     assert p.voxel_max == 0.03 and p.match_beam == 4 and p.contour_weight == 2.0
     with pytest.raises(ReconError, match="name=value"):
         FitParams.from_strings(["nope=1"])
-    with pytest.raises(ReconError, match="is not a float"):
+    with pytest.raises(ReconError, match="voxel_max=.big.: expected a number"):
         FitParams.from_strings(["voxel_max=big"])
 
 
