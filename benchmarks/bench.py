@@ -839,13 +839,16 @@ def run_metadata(config: BenchConfig, started: float, jobs: int = 1) -> dict:
     """Settings, seeds, versions, commit and host of a run (``run.json``)."""
     from bodyscan.recon import ReconParams
 
+    from .methods import resolve
+
     meta = {
         "command": " ".join(sys.argv),
         "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
         "seconds": round(time.time() - started, 1),
         "jobs": jobs,
         "config": config.to_dict(),
-        "recon_params": ReconParams.from_overrides(dict(config.recon)).to_dict(),
+        "recon_params": ReconParams.from_overrides(recon_params_of(
+            [resolve(m) for m in config.methods], config.recon)).to_dict(),
         "peer_params": dataclasses.asdict(PeerParams()),
         "metric_params": dataclasses.asdict(config.metric),
         "seeds": {"scan": config.seed, "metric_samples": config.metric.seed},

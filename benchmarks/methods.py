@@ -143,6 +143,8 @@ class Method:
                                   f"(--param {name}=VALUE, or method_params in a sweep file)")
             if isinstance(value, str) and default is not None and not isinstance(default, str):
                 value = _convert(self.name, name, value, default)
+            elif isinstance(value, str) and default is None:   # a command's: a number if it reads as one
+                value = _number(value)
             out[name] = value
         return out
 
@@ -173,6 +175,15 @@ class Method:
         times = {k: float(v) for k, v in dict(extra.pop("times", None) or {}).items()}
         times["total"] = total
         return vertices, faces, extra, times
+
+
+def _number(text: str):
+    for kind in (int, float):
+        try:
+            return kind(text)
+        except ValueError:
+            pass
+    return text
 
 
 def _convert(method, name, text, default):
