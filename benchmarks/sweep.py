@@ -596,17 +596,20 @@ class _MeshKeeper:
         if ids:
             table = store.read()
             for _, row in table[table["job_id"].isin(ids)].iterrows():
-                self.kept.setdefault(row["method"], []).append((_badness(row), row["job_id"]))
+                self.kept.setdefault(row["method"], []).append(
+                    (_badness(row), row["job_id"], row.get("scan_id")))
 
     def offer(self, job: Job, row: dict, mesh: dict) -> None:
         bad = _badness(row)
         if self.k == 0 or not math.isfinite(bad):
             return
-        kept = self.kept.setdefault(job.method, [])
+        kept = self.kept.setdefault(row.get("method", job.method), [])
+        if any(b == bad and scan == job.scan_id for b, _, scan in kept):
+            return    # the same mesh from a setting without effect: keep distinct ones
         if len(kept) >= self.k and bad <= min(kept)[0]:
             return
         self.store.put_mesh(job.job_id, mesh)
-        kept.append((bad, job.job_id))
+        kept.append((bad, job.job_id, job.scan_id))
         kept.sort(reverse=True)
         while len(kept) > self.k:
             self.store.drop_mesh(kept.pop()[1])
