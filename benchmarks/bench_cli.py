@@ -28,9 +28,11 @@ def register(sub) -> None:
     """Add ``bench`` and ``score`` to the ``bodyscan`` subparsers ``sub``."""
     p = sub.add_parser(
         "bench", help="the benchmark: scan every posture, reconstruct with every method, score",
-        description="The paper's experiment made numeric: every posture of the library, scanned with "
-                    "the 'paper' preset at k = 1, 2, 3, reconstructed with proposed, simple and every "
-                    "installed peer (poisson, poisson-trimmed, bpa, alpha, spsr), scored. Prints a "
+        description="The paper's experiment made numeric: every posture of the library, scanned "
+                    "with the 'paper' preset at k = 1 (--k 1,2,3: the paper's three angles), "
+                    "reconstructed with proposed, simple, every installed peer (poisson, "
+                    "poisson-trimmed, bpa, alpha, spsr; those not installed are named with the "
+                    "reason) and your own methods (--methods, --method-cmd), scored. Prints a "
                     "table (method x metric: mean and worst posture) and writes results.parquet, "
                     "report.md, run.json and pictures to reports/<run-id>/.")
     p.add_argument("--bodies", type=_csv, default=(), metavar="A,B",
@@ -38,8 +40,9 @@ def register(sub) -> None:
     p.add_argument("--presets", type=_csv, default=("paper",), metavar="P,Q",
                    help="scanner presets: paper (parallel, 10 mm) and/or scanner (perspective, 2 mm, "
                         "1 mm noise) (default paper)")
-    p.add_argument("--k", type=_csv, default=("1", "2", "3"), metavar="1,2,3", dest="ks",
-                   help="laser angle indices: the laser is k * 15 degrees from the camera axis (default 1,2,3)")
+    p.add_argument("--k", type=_csv, default=("1",), metavar="1,2,3", dest="ks",
+                   help="laser angle indices: the laser is k * 15 degrees from the camera axis "
+                        "(default 1; 1,2,3 is the paper's three angles, three times the work)")
     p.add_argument("--methods", type=_csv, default=(), metavar="M,N",
                    help="methods: proposed, simple, poisson, poisson-trimmed, bpa, alpha, spsr, an "
                         "installed entry point (group bodyscan.methods) or your own Python function "
