@@ -596,7 +596,8 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     meshes = {r["method"]: m for r, m in pairs if m is not None}
     table = pd.DataFrame(rows)
     table.to_parquet(out / "results.parquet", index=False)
-    summary = summary_table(table)
+    summary = summary_table(table) + ("\npeers not run: " + "; ".join(
+        f"{m} ({why})" for m, why in skipped.items()) if skipped else "")
     meta = run_metadata(config, started, jobs)
     meta["peers_not_run"] = skipped
     (out / "run.json").write_text(json.dumps(meta, indent=2, default=str))

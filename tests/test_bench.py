@@ -71,6 +71,20 @@ def test_bench_table_has_every_metric_and_parameter(bench_run, two_postures):
     assert "spur%" in bench_run.summary and "worst" in bench_run.summary
 
 
+def test_bench_times_show_the_shared_fit_once(bench_run):
+    """The posture fit serves proposed and simple: reported once per scan, not in either
+    method's own time, which is the sum of its own stages."""
+    t = bench_run.table
+    for _, g in t.groupby("body"):
+        assert g["time_fit_s"].nunique() == 1 and g["time_fit_s"].iloc[0] > 0
+    own = t[["time_coords_s", "time_cluster_s", "time_surface_s"]].sum(axis=1)
+    assert ((t["time_total_s"] - own).abs() <= 0.05 + 0.1 * own).all()
+    line = next(l for l in bench_run.summary.splitlines() if l.startswith("per scan"))
+    mean_fit = t.groupby("body")["time_fit_s"].first().mean()
+    assert f"posture fit {mean_fit:.2f} s (shared by proposed, simple" in line
+    assert "recon s" in bench_run.summary and "score s" in bench_run.summary
+
+
 def test_bench_pictures(bench_run):
     imgs = sorted(p.name for p in (bench_run.out / "img").glob("*.png"))
     for method in ("proposed", "simple"):
