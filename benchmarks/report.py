@@ -647,11 +647,13 @@ def _pictures(doc, store: ResultStore, table):
     bad = sum(rows[c].fillna(0) for c in ("spurious_area_fraction", "bridging_area_fraction")
               if c in rows.columns)
     rows = rows.assign(_bad=bad).sort_values("_bad", ascending=False)
-    # distinct meshes: settings without effect give the same mesh under several job ids
-    same = [c for c in ("method", "body", "scan_id", "n_faces", "_bad") if c in rows.columns]
-    rows = rows.assign(_bad=rows["_bad"].round(12)).drop_duplicates(same).head(_PICTURE_LIMIT)
+    # distinct cases: one mesh per method and scan, its worst setting (settings without effect
+    # give the same mesh under several job ids)
+    same = [c for c in ("method", "scan_id") if c in rows.columns] or ["method", "body", "_bad"]
+    rows = rows.drop_duplicates(same).head(_PICTURE_LIMIT)
     doc.heading("Reconstructions, worst first")
-    doc.para("Distinct meshes, worst first (spurious + bridging area). Sections in colour as in "
+    doc.para("One mesh per method and scan (its worst setting), worst first (spurious + "
+             "bridging area). Sections in colour as in "
              "the key under each picture; spurious or bridging triangles in red. Close-ups show "
              "the slab around each armpit and the crotch, seen from the front.")
     import tempfile

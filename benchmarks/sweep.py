@@ -18,8 +18,8 @@ fixed::
       "mesh_theta,mesh_h": [[5, 5], [10, 10]]   # tied axes: values taken together
       cases: [{t_n_factor: 0.3}, {t_n_factor: 0.6, near_band: 2}]   # explicit combinations,
                                                                     # crossed with the grid
-    keep_meshes: 3                   # per method, the meshes of the 3 worst jobs are kept
-                                     # for the report's pictures
+    keep_meshes: 3                   # per method, the meshes of the 3 worst jobs (of distinct
+                                     # scans) are kept for the report's pictures
 
 A method of your own (`benchmarks.methods`: ``[NAME=]module:function``, ``NAME=cmd:TEMPLATE``
 or an installed entry point) is listed under ``methods`` like a built-in one; its own parameters
@@ -587,7 +587,8 @@ class _DaskEngine:
 
 
 class _MeshKeeper:
-    """Keeps, per method, the meshes of the ``k`` worst jobs (spurious + bridging area)."""
+    """Keeps, per method, the meshes of the ``k`` worst jobs (spurious + bridging area), at most
+    one per scan (its worst setting), so that the pictures show distinct cases."""
 
     def __init__(self, store: ResultStore, k: int):
         self.store, self.k = store, k
@@ -604,8 +605,12 @@ class _MeshKeeper:
         if self.k == 0 or not math.isfinite(bad):
             return
         kept = self.kept.setdefault(row.get("method", job.method), [])
-        if any(b == bad and scan == job.scan_id for b, _, scan in kept):
-            return    # the same mesh from a setting without effect: keep distinct ones
+        same = [entry for entry in kept if entry[2] == job.scan_id]
+        if same:   # one mesh per scan, its worst setting: the pictures show distinct cases
+            if bad <= same[0][0]:
+                return
+            self.store.drop_mesh(same[0][1])
+            kept.remove(same[0])
         if len(kept) >= self.k and bad <= min(kept)[0]:
             return
         self.store.put_mesh(job.job_id, mesh)

@@ -285,14 +285,17 @@ def test_best_settings_state_their_objective_and_flat_axes_are_flagged(built):
 
 def test_worst_cases_are_distinct_meshes(tmp_path):
     """Three settings of an axis without effect give one mesh under three job ids (the paper
-    sweep drew the same mesh three times): the report draws it once."""
+    sweep drew the same mesh three times): the report draws one mesh per scan, its worst."""
     store = ResultStore(tmp_path / "sweep").open_for_writing()
     mesh = trimesh.creation.capsule(height=1.0, radius=0.15, count=[16, 16])
-    for i, t_n in enumerate((0.1, 0.3, 0.5, 0.7)):
-        job = Job(f"job{i}", "s-standing", "standing", 0, {"preset": "paper"}, "proposed",
+    cases = [("s-standing", "standing", 0.1, 0.05), ("s-standing", "standing", 0.3, 0.05),
+             ("s-standing", "standing", 0.5, 0.05), ("s-standing", "standing", 0.7, 0.04),
+             ("s-t_pose", "t_pose", 0.1, 0.01)]
+    for i, (scan, body, t_n, spurious) in enumerate(cases):
+        job = Job(f"job{i}", scan, body, 0, {"preset": "paper"}, "proposed",
                   {"t_d": 0.3, "t_n_factor": t_n})
         row = job.row()
-        row.update(status="ok", error=None, spurious_area_fraction=0.05 if i < 3 else 0.01,
+        row.update(status="ok", error=None, spurious_area_fraction=spurious,
                    bridging_area_fraction=0.01, n_faces=len(mesh.faces), **{"fscore_seen@5mm": 0.9})
         store.put(row)
         store.put_mesh(job.job_id, {"vertices": mesh.vertices, "faces": mesh.faces,
@@ -302,6 +305,6 @@ def test_worst_cases_are_distinct_meshes(tmp_path):
     store.write_json("meta.json", {"sweep": "same", "runs": []})
     report.build_report(tmp_path / "sweep", tmp_path / "rep")
     md = (tmp_path / "rep" / "report.md").read_text()
-    drawn = re.findall(r"!\[#(\d+) proposed / standing \(([^)]*)\)\]", md)
-    assert [n for n, _ in drawn] == ["1", "2"], drawn      # the 5 % mesh once, then the 1 % one
-    assert "t_n_factor=0.7" in drawn[1][1]
+    drawn = re.findall(r"!\[#(\d+) proposed / (\w+) \(([^)]*)\)\]", md)
+    assert [(n, body) for n, body, _ in drawn] == [("1", "standing"), ("2", "t_pose")], drawn
+    assert "t_n_factor=0.1" in drawn[0][2]      # the first of the equally bad settings
