@@ -1,8 +1,11 @@
 """The benchmark: scan every posture, reconstruct with every method, score, and write a report.
 
 `run_bench` is ``bodyscan bench``: the paper's experiment (section 4.2) made numeric. Each shipped
-posture is scanned with the ``paper`` preset at k = 1, 2, 3, reconstructed with ``proposed``,
-``simple`` and every installed peer (`benchmarks.peers`), and scored (`benchmarks.metrics`).
+posture is scanned with the ``paper`` preset at k = 1 (``ks=(1, 2, 3)``, ``--k 1,2,3``: the paper's
+three laser angles, three times the work), reconstructed with ``proposed``, ``simple``, every
+installed peer (`benchmarks.peers`) and every installed method of the ``bodyscan.methods``
+entry point group (`benchmarks.methods`), and scored (`benchmarks.metrics`). The posture is fitted
+once per scan and shared by ``proposed`` and ``simple``; postures run in parallel processes.
 A run writes, under ``reports/<run-id>/``:
 
 - ``results.parquet``: one row per posture x scan x method, every metric and every parameter
@@ -61,7 +64,8 @@ TABLE = {
     "normal_consistency": ("NC", 1, 3, True),
     "section_accuracy": ("sect.acc", 1, 3, True),
     "joint_error_median_m": ("joint mm", 1000, 1, False),
-    "time_total_s": ("time s", 1, 2, False),
+    "time_total_s": ("recon s", 1, 2, False),
+    "time_score_s": ("score s", 1, 2, False),
 }
 
 #: Scan seed of the default run.
@@ -216,13 +220,16 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
         The scanned body, with ground truth.
     scan : simulator.Scan
     method : str
-        One of `METHODS`.
+        A method spec (`benchmarks.methods`): a built-in name (`METHODS`), an installed entry
+        point, ``module:function`` or ``cmd:TEMPLATE``.
     params : dict or recon.ReconParams, optional
-        Flat reconstruction parameter overrides (``{"t_d": 0.3}``), for ``proposed``/``simple``.
+        Flat reconstruction parameter overrides (``{"t_d": 0.3}``) for ``proposed``/``simple``;
+        a method of yours takes its own parameters here.
     metric_params, peer_params : optional
     fit : recon.model.BodyFit, optional
         A posture already estimated on this scan with these parameters (shared between methods);
-        its ``fit_seconds`` are added to the method's time.
+        its ``fit_seconds`` are reported as ``time_fit_s``, apart from the method's own
+        ``time_total_s``.
     keep_mesh : bool
         Add a ``_mesh`` entry (vertices, faces, face_section, spurious, bridging, closeups) for
         pictures; callers storing the row drop it.
@@ -239,36 +246,47 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
     BenchError
         Unknown method or missing package; errors of the method itself propagate.
     """
-    if method not in METHODS:
-        raise BenchError(f"unknown method {method!r} (choose from {', '.join(METHODS)})")
+    from .methods import resolve
+
+    m = resolve(method)
     metric_params = metric_params or MetricParams()
-    row: dict = {"body": body.name, "method": method}
+    row: dict = {"body": body.name, "method": m.name}
+    if m.spec != m.name:
+        row["method_spec"] = m.spec
     row.update(scan_columns(scan))
-    if method in RECON_METHODS:
+    if m.kind == "recon":
         from bodyscan import recon
 
         rp = _recon_params(params)
         with PeakMemory() as mem:
-            rec = recon.reconstruct(scan.points, method, rp, view_dir=scan.view_dir, fit=fit)
+            rec = recon.reconstruct(scan.points, m.name, rp, view_dir=scan.view_dir, fit=fit)
         times = dict(rec.times)
-        if fit is not None:
+        if fit is not None:   # shared by the methods of a scan: reported apart, not in "total"
             times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
             times["fit"] = float(fit_seconds)
-            times["total"] = times.get("total", 0.0) + float(fit_seconds)
         vertices, faces = rec.vertices, rec.faces
         extra = dict(point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
                      joints=rec.fit.joints)
         face_section = np.asarray(rec.face_section)
         row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
                     for k, v in rp.to_dict().items()})
-    else:
+    elif m.kind == "peer":
         if params:
-            raise BenchError(f"method {method!r} takes no recon parameters (got {', '.join(dict(params))})")
+            raise BenchError(f"method {m.name!r} takes no recon parameters (got {', '.join(dict(params))})")
         peer_params = peer_params or PeerParams()
         with PeakMemory() as mem:
-            vertices, faces, times = reconstruct_peer(method, scan.points, scan.view_dir, peer_params)
+            vertices, faces, times = reconstruct_peer(m.name, scan.points, scan.view_dir, peer_params)
         extra, face_section = {}, None
         row.update({k.replace("peer_", "peer."): v for k, v in peer_params.as_columns().items()})
+    else:   # your own method (benchmarks.methods): its parameters are its recon.* columns
+        own = m.check_params(dict(params) if params else None)
+        with PeakMemory() as mem:
+            vertices, faces, got, times = m.run(scan.points, scan.view_dir,
+                                                getattr(scan, "head", None), own)
+        extra = {k: got[k] for k in ("point_index", "point_sections", "joints")
+                 if got.get(k) is not None}
+        face_section = got.get("face_section")
+        row.update({f"recon.{k}": v for k, v in own.items()})
     row.update({f"time_{k}_s": float(v) for k, v in times.items()})
     row["peak_memory_mb"] = float(mem.peak_mb)
     t0 = time.perf_counter()
@@ -303,7 +321,8 @@ class BenchConfig:
     presets : tuple of str
         Scanner presets (`simulator.PRESETS`).
     ks : tuple of float
-        Laser angle indices (angle = k * 15 degrees), paper 4.1.
+        Laser angle indices (angle = k * 15 degrees), paper 4.1; the paper scans k = 1, 2, 3,
+        the default run k = 1 (within 3 minutes on two cores).
     methods : tuple of str
         Empty: ``proposed``, ``simple`` and every installed peer.
     recon : dict
@@ -318,7 +337,7 @@ class BenchConfig:
 
     bodies: tuple = ()
     presets: tuple = ("paper",)
-    ks: tuple = (1, 2, 3)
+    ks: tuple = (1,)
     methods: tuple = ()
     recon: dict = field(default_factory=dict)
     scanner: dict = field(default_factory=dict)
@@ -336,18 +355,27 @@ class BenchConfig:
             raise BenchError("no postures: the pose library is empty and --bodies names none")
         for b in bodies:
             load_body(b).require_ground_truth("the benchmark")
-        methods = tuple(self.methods) or RECON_METHODS + tuple(available_peers())
-        unknown = [m for m in methods if m not in METHODS]
-        if unknown:
-            raise BenchError(f"unknown method(s) {', '.join(unknown)} (choose from {', '.join(METHODS)})")
-        missing = [m for m in methods if m in PEERS and m not in available_peers()]
+        from .methods import installed_methods, resolve
+
+        methods = tuple(self.methods) or (RECON_METHODS + tuple(available_peers())
+                                          + tuple(installed_methods()))
+        resolved = [resolve(m) for m in methods]
+        names = [m.name for m in resolved]
+        if len(set(names)) != len(names):
+            raise BenchError(f"methods {', '.join(names)}: a name is used twice")
+        missing = [m.name for m in resolved if m.kind == "peer" and m.name not in available_peers()]
         if missing:
             raise BenchError(f"method(s) {', '.join(missing)} need the peers extra: "
                              "pip install 'bodyscan[peers]' (Open3D also needs apt-get install libusb-1.0-0)")
-        if any(m in RECON_METHODS for m in methods):
-            _recon_params(dict(self.recon))
-        elif self.recon:
-            raise BenchError("recon parameters were given but no recon method (proposed, simple) runs")
+        for m in resolved:
+            if not m.builtin:
+                m.check_params(method_params(m, self.recon))
+        recon = recon_params_of(resolved, self.recon)
+        if any(m.kind == "recon" for m in resolved):
+            _recon_params(recon)
+        elif recon:
+            raise BenchError(f"parameter(s) {', '.join(recon)} belong to no method that runs "
+                             "(recon parameters are for proposed and simple)")
         if not self.ks or any(not 0 < float(k) < 6 for k in self.ks):
             raise BenchError(f"k values must be in (0, 6) (laser angle k * 15 degrees), got {self.ks}")
         from bodyscan import simulator
@@ -382,6 +410,44 @@ def _log(msg: str, stream) -> None:
         print(msg, file=stream, flush=True)
 
 
+def method_params(method, params: dict) -> dict:
+    """The entries of the flat ``params`` that are parameters of ``method``: recon parameters
+    for a recon method, its own for a method of yours, none for a peer."""
+    params = dict(params or {})
+    if method.kind == "recon":
+        return params
+    if method.kind == "peer":
+        return {}
+    own = method.defaults()
+    return {k: v for k, v in params.items() if k in own}
+
+
+def recon_params_of(methods, params: dict) -> dict:
+    """The entries of ``params`` left for the recon methods: those that no method of yours
+    among ``methods`` claims as its own."""
+    claimed = set()
+    for m in methods:
+        if not m.builtin:
+            claimed |= set(m.defaults())
+    return {k: v for k, v in dict(params or {}).items() if k not in claimed}
+
+
+def method_names(specs) -> list:
+    """The table names of method specs (`benchmarks.methods.method_name`)."""
+    from .methods import method_name
+
+    return [method_name(s) for s in specs]
+
+
+def skipped_peers(methods) -> dict:
+    """Peers that a run of ``methods`` leaves out, and why: {peer: reason}."""
+    from .peers import unavailable_peers
+
+    missing = unavailable_peers()
+    return {p: missing.get(p, "not asked for: --methods or --no-peers")
+            for p in PEERS if p not in method_names(methods)}
+
+
 def _estimate_fit(scan, params):
     """The posture of ``scan`` with ``params``, and the seconds it took."""
     from bodyscan.recon.pipeline import estimate_fit
@@ -397,9 +463,13 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
     from bodyscan import simulator
     from bodyscan.poses.body import load_body
 
+    from .methods import resolve
+
     body = load_body(body_name)
     ground_truth(body, config.metric)
-    uses_recon = any(m in RECON_METHODS for m in config.methods)
+    methods = [resolve(m) for m in config.methods]
+    recon_only = recon_params_of(methods, config.recon)
+    uses_recon = any(m.kind == "recon" for m in methods)
     out = []
     for preset in config.presets:
         for k in config.ks:
@@ -409,9 +479,9 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                 sc = simulator.scan(body, cfg, seed=config.seed)
             except Exception as exc:  # every method of this scan fails with it
                 error = f"scan failed: {type(exc).__name__}: {exc}"
-                out += [({"body": body.name, "method": m, "preset": preset, "k": float(k),
+                out += [({"body": body.name, "method": m.name, "preset": preset, "k": float(k),
                           "seed": config.seed, "status": "error", "error": error}, None)
-                        for m in config.methods]
+                        for m in methods]
                 if verbose:
                     _log(f"  {body.name} {preset} k={k:g}: {error}", sys.stderr)
                 continue
@@ -421,26 +491,26 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                 try:
                     with PeakMemory() as mem, warnings.catch_warnings(record=True) as fit_warn:
                         warnings.simplefilter("always")
-                        fit, fit_s = _estimate_fit(sc, _recon_params(dict(config.recon)))
+                        fit, fit_s = _estimate_fit(sc, _recon_params(recon_only))
                     fit_mb = mem.peak_mb
                 except Exception as exc:  # the recon methods of this scan fail with it
                     fit_error = f"{type(exc).__name__}: {exc}"
-            for method in config.methods:
-                base = {"body": body.name, "method": method, "preset": preset, "k": float(k),
+            for m in methods:
+                is_recon = m.kind == "recon"
+                base = {"body": body.name, "method": m.name, "preset": preset, "k": float(k),
                         "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
-                t0 = time.perf_counter()
-                caught = list(fit_warn) if method in RECON_METHODS else []
+                caught = list(fit_warn) if is_recon else []
                 try:
-                    if method in RECON_METHODS and fit_error:
+                    if is_recon and fit_error:
                         raise BenchError(f"posture estimation failed: {fit_error}")
                     with warnings.catch_warnings(record=True) as more:
                         warnings.simplefilter("always")
-                        row = evaluate(body, sc, method,
-                                       dict(config.recon) if method in RECON_METHODS else None,
+                        row = evaluate(body, sc, m.spec,
+                                       recon_only if is_recon else method_params(m, config.recon),
                                        metric_params=config.metric, fit=fit, fit_seconds=fit_s,
                                        keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
                     caught += more
-                    if method in RECON_METHODS:
+                    if is_recon:
                         row["peak_memory_mb"] = max(row["peak_memory_mb"], fit_mb)
                     row = {**base, **row}
                 except Exception as exc:
@@ -450,12 +520,14 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                 row["warnings"] = "; ".join(dict.fromkeys(str(w.message) for w in caught)) or None
                 mesh = row.pop("_mesh", None)
                 out.append((row, mesh))
-                if verbose:
+                if verbose:   # the same seconds as the table's (time_total_s, time_score_s)
                     status = f"error: {row['error']}" if row["status"] != "ok" else (
                         f"spurious {100 * row['spurious_area_fraction']:.2f} %, bridging "
-                        f"{row['bridging_area_cm2']:.0f} cm2, F_seen@5mm {row['fscore_seen@5mm']:.3f}")
-                    _log(f"  {body.name} {preset} k={k:g} {method}: {status} "
-                         f"({time.perf_counter() - t0:.1f} s)", sys.stderr)
+                        f"{row['bridging_area_cm2']:.0f} cm2, F_seen@5mm {row['fscore_seen@5mm']:.3f} "
+                        f"(reconstruction {row.get('time_total_s', float('nan')):.1f} s"
+                        + (f" after the shared fit {fit_s:.1f} s" if is_recon else "")
+                        + f", scoring {row.get('time_score_s', float('nan')):.1f} s)")
+                    _log(f"  {body.name} {preset} k={k:g} {m.name}: {status}", sys.stderr)
     return out
 
 
@@ -494,6 +566,10 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     _log(f"bodyscan bench: {len(config.bodies)} posture(s) x {len(config.presets)} preset(s) x "
          f"{len(config.ks)} k x {len(config.methods)} method(s) = {n_cases} reconstructions, "
          f"{jobs} process(es) -> {out}", progress)
+    skipped = skipped_peers(config.methods)
+    _log("bodyscan bench: methods " + ", ".join(method_names(config.methods)) + (
+        "; peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items())
+        if skipped else "; every peer runs"), progress)
     picture_body = "standing" if "standing" in config.bodies else config.bodies[0]
     picture_case = (picture_body, config.presets[0], config.ks[0])
     verbose = progress is not None
@@ -525,10 +601,14 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     from bodyscan._io import atomic_write, write_json, write_text
 
     atomic_write(out / "results.parquet", lambda tmp: table.to_parquet(tmp, index=False))
-    summary = summary_table(table)
-    write_json(out / "run.json", run_metadata(config, started, jobs), indent=2)
+    summary = summary_table(table) + ("\npeers not run: " + "; ".join(
+        f"{m} ({why})" for m, why in skipped.items()) if skipped else "")
+    meta = run_metadata(config, started, jobs)
+    meta["peers_not_run"] = skipped
+    write_json(out / "run.json", meta, indent=2)
     pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
-    write_text(out / "report.md", report_markdown(table, config, summary, pictures, picture_case))
+    write_text(out / "report.md", report_markdown(table, config, summary, pictures, picture_case,
+                                                  skipped))
     _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
          f"report.md, run.json" + (f" and pictures of {len(pictures)} method(s) in img/" if pictures else ""),
          progress)
@@ -537,6 +617,13 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
 
 # --------------------------------------------------------------------------------------------------
 # tables, pictures, metadata
+
+
+def method_order(names) -> list:
+    """Distinct method names in table order: the built-in ones (`METHODS`), then the others as
+    they come."""
+    names = list(dict.fromkeys(names))
+    return [m for m in METHODS if m in names] + [m for m in names if m not in METHODS]
 
 
 def common_cases(table):
@@ -555,7 +642,7 @@ def method_summary(table):
     Returns a DataFrame indexed by method (with ``cases`` used and ``failed``)."""
     import pandas as pd
 
-    methods = [m for m in METHODS if m in set(table["method"])]
+    methods = method_order(table["method"])
     records = []
     ok = common_cases(table)
     for m in methods:
@@ -601,15 +688,34 @@ def summary_table(table) -> str:
     common = common_cases(table)
     n_scans = len(common.groupby(["body", "preset", "k"]))
     n_all = len(table.groupby(["body", "preset", "k"]))
+    out.append(shared_times(table))
     out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
                "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
                "Rseen: recall of the surface the scanner saw, CD-L1: Chamfer-L1 (mean of both "
-               "directions), NC: normal consistency, joint: median joint error.")
+               "directions), NC: normal consistency, joint: median joint error; recon s: the "
+               "method's own seconds (the shared posture fit apart), score s: scoring.")
     return "\n".join(out)
 
 
-def report_markdown(table, config: BenchConfig, summary: str, pictures: list, picture_case) -> str:
+def shared_times(table) -> str:
+    """One line: mean seconds per scan of the stages shared by the methods of a scan (the scan,
+    and the posture fit of the recon methods, counted once)."""
+    ok = table[table["status"] == "ok"]
+    per_scan = ok.groupby(["body", "preset", "k"])
+    parts = []
+    if "time_scan_s" in ok.columns:
+        parts.append(f"scan {per_scan['time_scan_s'].first().mean():.2f} s")
+    if "time_fit_s" in ok.columns and ok["time_fit_s"].notna().any():
+        fit = ok[ok["time_fit_s"].notna()]
+        users = ", ".join(method_order(fit["method"]))
+        parts.append(f"posture fit {fit.groupby(['body', 'preset', 'k'])['time_fit_s'].first().mean():.2f} s "
+                     f"(shared by {users}; not in their recon s)")
+    return "per scan, shared by its methods: " + ("; ".join(parts) or "-")
+
+
+def report_markdown(table, config: BenchConfig, summary: str, pictures: list, picture_case,
+                    skipped: dict | None = None) -> str:
     """The ``report.md`` text."""
     s = method_summary(table)
     metrics = [m for m in TABLE if m in s.columns]
@@ -618,6 +724,9 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           f"presets {', '.join(config.presets)}, k = {', '.join(f'{k:g}' for k in config.ks)}, "
           f"methods {', '.join(config.methods)}; scan seed {config.seed}. "
           f"Every number is in `results.parquet`; settings in `run.json`.", "",
+          *([f"Peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items()) + ".", ""]
+            if skipped else []),
+          shared_times(table) + ".", "",
           "## By method", "",
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "
@@ -635,7 +744,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
                "| method | posture | preset | k | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
                "|---|---|---|---:|" + "---:|" * len(metrics)]
         for _, r in ok.sort_values(["method", "body", "preset", "k"],
-                                   key=lambda c: c.map({m: i for i, m in enumerate(METHODS)})
+                                   key=lambda c: c.map({m: i for i, m in enumerate(method_order(c))})
                                    if c.name == "method" else c).iterrows():
             md.append(f"| {r['method']} | {r['body']} | {r['preset']} | {r['k']:g} | "
                       + " | ".join(_fmt(m, r.get(m, np.nan)) for m in metrics) + " |")
@@ -681,7 +790,7 @@ def _pictures(meshes: dict, case, out: Path, progress) -> list:
         return []
     done = []
     body = case[0]
-    for method in [m for m in METHODS if m in meshes]:
+    for method in method_order(meshes):
         mesh = meshes[method]
         red = np.zeros(len(mesh["faces"]), bool)
         for key in ("spurious", "bridging"):
@@ -740,13 +849,16 @@ def run_metadata(config: BenchConfig, started: float, jobs: int = 1) -> dict:
     """Settings, seeds, versions, commit and host of a run (``run.json``)."""
     from bodyscan.recon import ReconParams
 
+    from .methods import resolve
+
     meta = {
         "command": " ".join(sys.argv),
         "started_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime(started)),
         "seconds": round(time.time() - started, 1),
         "jobs": jobs,
         "config": config.to_dict(),
-        "recon_params": ReconParams.from_overrides(dict(config.recon)).to_dict(),
+        "recon_params": ReconParams.from_overrides(recon_params_of(
+            [resolve(m) for m in config.methods], config.recon)).to_dict(),
         "peer_params": dataclasses.asdict(PeerParams()),
         "metric_params": dataclasses.asdict(config.metric),
         "seeds": {"scan": config.seed, "metric_samples": config.metric.seed},

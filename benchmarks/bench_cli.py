@@ -28,9 +28,11 @@ def register(sub) -> None:
     """Add ``bench`` and ``score`` to the ``bodyscan`` subparsers ``sub``."""
     p = sub.add_parser(
         "bench", help="the benchmark: scan every posture, reconstruct with every method, score",
-        description="The paper's experiment made numeric: every posture of the library, scanned with "
-                    "the 'paper' preset at k = 1, 2, 3, reconstructed with proposed, simple and every "
-                    "installed peer (poisson, poisson-trimmed, bpa, alpha, spsr), scored. Prints a "
+        description="The paper's experiment made numeric: every posture of the library, scanned "
+                    "with the 'paper' preset at k = 1 (--k 1,2,3: the paper's three angles), "
+                    "reconstructed with proposed, simple, every installed peer (poisson, "
+                    "poisson-trimmed, bpa, alpha, spsr; those not installed are named with the "
+                    "reason) and your own methods (--methods, --method-cmd), scored. Prints a "
                     "table (method x metric: mean and worst posture) and writes results.parquet, "
                     "report.md, run.json and pictures to reports/<run-id>/.")
     p.add_argument("--bodies", type=_csv, default=(), metavar="A,B",
@@ -38,15 +40,23 @@ def register(sub) -> None:
     p.add_argument("--presets", type=_csv, default=("paper",), metavar="P,Q",
                    help="scanner presets: paper (parallel, 10 mm) and/or scanner (perspective, 2 mm, "
                         "1 mm noise) (default paper)")
-    p.add_argument("--k", type=_csv, default=("1", "2", "3"), metavar="1,2,3", dest="ks",
-                   help="laser angle indices: the laser is k * 15 degrees from the camera axis (default 1,2,3)")
+    p.add_argument("--k", type=_csv, default=("1",), metavar="1,2,3", dest="ks",
+                   help="laser angle indices: the laser is k * 15 degrees from the camera axis "
+                        "(default 1; 1,2,3 is the paper's three angles, three times the work)")
     p.add_argument("--methods", type=_csv, default=(), metavar="M,N",
-                   help="methods: proposed, simple, poisson, poisson-trimmed, bpa, alpha, spsr "
-                        "(default: proposed, simple and every installed peer)")
+                   help="methods: proposed, simple, poisson, poisson-trimmed, bpa, alpha, spsr, an "
+                        "installed entry point (group bodyscan.methods) or your own Python function "
+                        "as [NAME=]module:function (default: proposed, simple, every installed peer "
+                        "and entry point)")
+    p.add_argument("--method-cmd", action="append", default=[], metavar="'[NAME=]TOOL {cloud} {out}'",
+                   help="an external command as one more method: {cloud} is replaced by a PLY of the "
+                        "points, {out} by the mesh file it must write, {NAME} by --param NAME=VALUE; "
+                        "repeatable (see benchmarks/methods.py)")
     p.add_argument("--no-peers", action="store_true",
                    help="only proposed and simple (when --methods is not given)")
     p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
-                   help="reconstruction parameter override by its name (e.g. t_d=0.3); repeatable")
+                   help="reconstruction parameter override by its name (e.g. t_d=0.3), or a "
+                        "parameter of your own method; repeatable")
     p.add_argument("--scanner", action="append", default=[], metavar="NAME=VALUE",
                    help="scanner setting override for every preset (e.g. noise_sigma=0.001, metres); "
                         "repeatable")
@@ -157,10 +167,16 @@ def bench_command(args) -> int:
     from bodyscan._io import check_out
 
     from . import BenchError
+    from .methods import command_spec, installed_methods
 
     if args.out:
         check_out(args.out, folder=True, error=BenchError)
-    methods = args.methods or (RECON_METHODS if args.no_peers else ())
+    methods = tuple(args.methods or ()) or (RECON_METHODS if args.no_peers else ())
+    if args.method_cmd:   # added to the methods named, or to the default set
+        if not methods:
+            from .peers import available_peers
+            methods = RECON_METHODS + tuple(available_peers()) + tuple(installed_methods())
+        methods += tuple(command_spec(t) for t in args.method_cmd)
     config = BenchConfig(bodies=args.bodies, presets=args.presets, ks=tuple(_k(k) for k in args.ks),
                          methods=methods, recon=_pairs(args.param, "--param"),
                          scanner=_scanner(args.scanner), seed=args.seed,
@@ -254,9 +270,12 @@ def score_command(args) -> int:
     if scan is not None:
         from scipy.spatial import cKDTree
 
-        d, i = cKDTree(scan.points).query(vertices, distance_upper_bound=1e-6)
-        point_index = np.where(np.isfinite(d), i, -1)
-        point_sections = _point_sections_from_faces(mesh, faces, point_index, len(scan.points))
+        if vertices.shape == scan.points.shape and np.array_equal(vertices, scan.points):
+            point_index = np.arange(len(vertices))     # a recon mesh: the cloud's points, in order
+        else:
+            d, i = cKDTree(scan.points).query(vertices, distance_upper_bound=1e-6)
+            point_index = np.where(np.isfinite(d), i, -1)
+        point_sections = _point_sections(mesh, faces, point_index, len(scan.points))
     row = score(vertices, faces, body, scan, point_index=point_index, point_sections=point_sections,
                 joints=joints, metric_params=_metric_params(args.metric))
     row = {"mesh": str(args.mesh), "body": body.name, "cloud": args.cloud, **row}
@@ -273,21 +292,31 @@ def score_command(args) -> int:
     return 0
 
 
-def _point_sections_from_faces(mesh, faces, point_index, n_points):
-    """(n, 11) bool section labels of the cloud points from a mesh's per-face ``section`` property
-    (a `recon` mesh): each point gets the sections of the faces around it; None when the mesh
-    has no such property or no vertex is a cloud point."""
+def _point_sections(mesh, faces, point_index, n_points):
+    """(n, 11) bool section labels of the cloud points, from a `recon` mesh: the vertices'
+    ``sections`` property (bit s: section s), exactly the labels `bench` scores; from a mesh
+    written before it, the sections of the faces around each point (points on no face get none).
+    None when the mesh has neither or no vertex is a cloud point."""
     import numpy as np
 
     from .metrics import SECTIONS
 
-    face_attr = getattr(mesh, "metadata", {}).get("_ply_raw", {}).get("face", {}).get("data")
+    raw = getattr(mesh, "metadata", {}).get("_ply_raw", {})
+    if not (point_index >= 0).any():
+        return None
+    out = np.zeros((n_points, len(SECTIONS)), bool)
+    vertex_attr = raw.get("vertex", {}).get("data")
+    if vertex_attr is not None and "sections" in (vertex_attr.dtype.names or ()):
+        bits = np.asarray(vertex_attr["sections"]).astype(np.int64).reshape(-1)
+        keep = point_index >= 0
+        out[point_index[keep]] = (bits[keep, None] >> np.arange(len(SECTIONS))) & 1 == 1
+        return out
+    face_attr = raw.get("face", {}).get("data")
     section = None
     if face_attr is not None and "section" in (face_attr.dtype.names or ()):
         section = np.asarray(face_attr["section"]).astype(np.int64).reshape(-1)
-    if section is None or len(section) != len(faces) or not (point_index >= 0).any():
+    if section is None or len(section) != len(faces):
         return None
-    out = np.zeros((n_points, len(SECTIONS)), bool)
     ok = (section >= 0) & (section < len(SECTIONS))
     for c in range(3):
         pi = point_index[faces[ok, c]]

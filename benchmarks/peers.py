@@ -79,14 +79,20 @@ class PeerParams:
 
 def available_peers() -> list[str]:
     """Peer methods whose package imports here."""
-    ok = {}
-    for pkg in set(PEERS.values()):
+    missing = unavailable_peers()
+    return [m for m in PEERS if m not in missing]
+
+
+def unavailable_peers() -> dict:
+    """Peer methods whose package does not import here: {method: why, in one line}."""
+    why = {}
+    for pkg in sorted(set(PEERS.values())):
         try:
             __import__(pkg)
-            ok[pkg] = True
-        except Exception:  # ImportError, or OSError for a missing system library (libusb)
-            ok[pkg] = False
-    return [m for m, pkg in PEERS.items() if ok[pkg]]
+        except Exception as exc:  # ImportError, or OSError for a missing system library (libusb)
+            hint = " (apt-get install libusb-1.0-0)" if "libusb" in str(exc) else ""
+            why[pkg] = f"{pkg} does not import: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}{hint}"
+    return {m: why[pkg] for m, pkg in PEERS.items() if pkg in why}
 
 
 def _import(method: str):

@@ -85,7 +85,8 @@ class RenderFallbackWarning(UserWarning):
 # -- public API ---------------------------------------------------------------------------------
 
 def render_mesh(vertices, faces, face_colors, out, *, views=("front", "side", "back"),
-                size=(800, 800), close_up=None, title=None, backend: str | None = None) -> Path:
+                size=(800, 800), close_up=None, title=None, backend: str | None = None,
+                legend: bool = True) -> Path:
     """Render a triangle mesh with per-face colours offscreen, views side by side, to a PNG.
 
     Parameters
@@ -111,6 +112,11 @@ def render_mesh(vertices, faces, face_colors, out, *, views=("front", "side", "b
         close-up of an armpit is not hidden by an arm in front of it). None frames the whole mesh.
     title : str or None
         Text drawn above the views.
+    legend : bool
+        Draw the colour key under the views: the section colours (`SECTION_COLORS`), red for
+        `HIGHLIGHT_COLOR` (spurious or bridging triangles) and grey for no section; and each
+        view's name in a band above it, where the mesh cannot hide it. False: the views alone
+        (``len(views) * width`` by ``height`` plus the title band), names drawn on them.
     backend : {"auto", "pyrender", "matplotlib"} or None
         ``"auto"`` (default; environment variable ``BODYSCAN_RENDERER`` overrides) uses pyrender
         and falls back to matplotlib with a `RenderFallbackWarning` when no GL context can be made;
@@ -165,7 +171,7 @@ def render_mesh(vertices, faces, face_colors, out, *, views=("front", "side", "b
     out.parent.mkdir(parents=True, exist_ok=True)
     from bodyscan._io import atomic_write
 
-    picture = _compose(images, list(views), title)
+    picture = _compose(images, list(views), title, legend)
     return atomic_write(out, picture.save)
 
 
@@ -399,20 +405,50 @@ def _render_mpl(v, f, colors, normals, cam: _Camera, width: int, height: int) ->
 
 # -- composition --------------------------------------------------------------------------------
 
-def _compose(images: list, labels: list, title: str | None):
-    """One PIL image: the views side by side, each labelled, under an optional title band."""
+def legend_items() -> list:
+    """The colour key: [(label, (r, g, b) in [0, 1])], sections in label order, then the
+    highlight (spurious or bridging) and no section."""
+    from .metrics import SECTIONS
+
+    return ([(name.replace("_", " "), tuple(c)) for name, c in zip(SECTIONS, SECTION_COLORS)]
+            + [("spurious or bridging", tuple(HIGHLIGHT_COLOR)), ("no section", tuple(UNLABELLED_COLOR))])
+
+
+def _compose(images: list, labels: list, title: str | None, legend: bool = True):
+    """One PIL image: an optional title band, a band naming each view (above the picture, so
+    that the mesh never hides it), the views side by side, and the colour key under them."""
     from PIL import Image, ImageDraw, ImageFont
 
     height, width = images[0].shape[:2]
+    total = width * len(images)
     band = max(24, height // 18) if title else 0
-    canvas = Image.new("RGB", (width * len(images), height + band), (255, 255, 255))
+    label_size = max(12, height // 45)
+    label_band = label_size + 8 if legend else 0    # without the key: labels on the picture
+    font = _font(ImageFont, label_size)
+    rows, x, row = [[]], 8, 0                       # legend items flowed into rows
+    probe = ImageDraw.Draw(Image.new("RGB", (1, 1)))
+    for text, color in (legend_items() if legend else []):
+        w = label_size + 4 + int(probe.textlength(text, font=font)) + 12
+        if x + w > total and rows[-1]:
+            rows.append([])
+            x = 8
+        rows[-1].append((x, text, color))
+        x += w
+    key_band = (len(rows) * (label_size + 6) + 6) if legend else 0
+    canvas = Image.new("RGB", (total, band + label_band + height + key_band), (255, 255, 255))
     draw = ImageDraw.Draw(canvas)
-    label_font = _font(ImageFont, max(12, height // 45))
+    top = band + label_band
     for i, (image, label) in enumerate(zip(images, labels)):
-        canvas.paste(Image.fromarray(image), (i * width, band))
-        draw.text((i * width + 8, band + 6), label, fill=(90, 90, 90), font=label_font)
+        canvas.paste(Image.fromarray(image), (i * width, top))
+        draw.text((i * width + 8, band + (3 if legend else 6)), label, fill=(60, 60, 60), font=font)
     if title:
         draw.text((10, band // 6), title, fill=(0, 0, 0), font=_font(ImageFont, int(band * 0.6)))
+    for r, items in enumerate(rows if legend else []):
+        y = top + height + 4 + r * (label_size + 6)
+        for x, text, color in items:
+            rgb = tuple(int(round(255 * c)) for c in color)
+            draw.rectangle([x, y + 1, x + label_size, y + label_size + 1], fill=rgb, outline=(80, 80, 80))
+            draw.text((x + label_size + 4, y), text, fill=(40, 40, 40), font=font)
     return canvas
 
 

@@ -18,8 +18,17 @@ fixed::
       "mesh_theta,mesh_h": [[5, 5], [10, 10]]   # tied axes: values taken together
       cases: [{t_n_factor: 0.3}, {t_n_factor: 0.6, near_band: 2}]   # explicit combinations,
                                                                     # crossed with the grid
-    keep_meshes: 3                   # per method, the meshes of the 3 worst jobs are kept
-                                     # for the report's pictures
+    keep_meshes: 3                   # per method, the meshes of the 3 worst jobs (of distinct
+                                     # scans) are kept for the report's pictures
+
+A method of your own (`benchmarks.methods`: ``[NAME=]module:function``, ``NAME=cmd:TEMPLATE``
+or an installed entry point) is listed under ``methods`` like a built-in one; its own parameters
+are swept under ``method_params``, by its name, with the same grid syntax (the ``recon`` grid is
+for proposed and simple; peers and methods without ``method_params`` run once per scan)::
+
+    methods: [proposed, tiny=mypkg.tiny:reconstruct]
+    method_params:
+      tiny: {radius: [0.01, 0.02]}
 
 A list-valued setting is written as a list of lists (``[[1, 2, 3]]`` is one value). Every
 combination of body x seed x scanner setting x method x recon setting is one job. A job's id is a
@@ -72,7 +81,7 @@ DEFAULT_RUNNER = "bodyscan.benchmarks.sweep"
 COMPACT_EVERY = 100
 #: Top-level keys of a sweep file.
 SWEEP_KEYS = ("name", "description", "bodies", "seeds", "methods", "scanner", "recon", "runner",
-              "keep_meshes")
+              "keep_meshes", "method_params")
 
 
 @dataclass(frozen=True)
@@ -89,8 +98,12 @@ class Job:
 
     def row(self) -> dict:
         """The job's parameters as result columns (``scanner.*``, ``recon.*``)."""
+        from .methods import method_name
+
         row = {"job_id": self.job_id, "scan_id": self.scan_id, "body": self.body,
-               "seed": self.seed, "method": self.method}
+               "seed": self.seed, "method": method_name(self.method)}
+        if row["method"] != self.method:
+            row["method_spec"] = self.method
         row.update({f"scanner.{k}": v for k, v in self.scanner.items()})
         row.update({f"recon.{k}": v for k, v in self.recon.items()})
         row["scanner_json"] = json.dumps(self.scanner, sort_keys=True)
@@ -121,6 +134,9 @@ class Sweep:
         The sweep file's text.
     recon_free : tuple of str
         Methods that take no reconstruction parameters: one job per scan.
+    method_params : dict of str to tuple of dict
+        Per method name, the grid of its own parameters (``method_params`` of the file), used
+        instead of ``recon``.
     """
 
     name: str
@@ -134,6 +150,17 @@ class Sweep:
     body_paths: dict = field(default_factory=dict)
     source: str = ""
     recon_free: tuple = ()
+    method_params: dict = field(default_factory=dict)
+
+    def settings(self, method: str) -> tuple:
+        """The parameter settings of ``method``'s jobs: its ``method_params`` grid, one empty
+        setting for a method without parameters, else the ``recon`` grid."""
+        from .methods import method_name
+
+        name = method_name(method)
+        if name in self.method_params:
+            return self.method_params[name]
+        return ({},) if method in self.recon_free else self.recon
 
     def jobs(self) -> list[Job]:
         """Every job, grouped by scan (all jobs of one scan are adjacent)."""
@@ -141,13 +168,10 @@ class Sweep:
         for body, scanner, seed in itertools.product(self.bodies, self.scanner, self.seeds):
             scan_key = {"body": body, "scanner": scanner, "seed": seed, "runner": self.runner}
             scan_id = _digest(scan_key)
-            for method, recon in itertools.product(self.methods, self.recon):
-                if method in self.recon_free:   # one job per scan, whatever the recon grid
-                    if recon is not self.recon[0]:
-                        continue
-                    recon = {}
-                job_id = _digest({**scan_key, "method": method, "recon": recon})
-                out.append(Job(job_id, scan_id, body, seed, scanner, method, recon))
+            for method in self.methods:
+                for recon in self.settings(method):
+                    job_id = _digest({**scan_key, "method": method, "recon": recon})
+                    out.append(Job(job_id, scan_id, body, seed, scanner, method, recon))
         return out
 
 
@@ -193,6 +217,17 @@ def load_sweep(path) -> Sweep:
     if not isinstance(scanner, dict):
         raise BenchError(f"{path}: scanner must be a mapping of ScannerConfig fields")
     scanner = {"preset": "paper", **scanner}
+    own = spec.get("method_params") or {}
+    if not isinstance(own, dict) or not all(isinstance(v, dict) for v in own.values()):
+        raise BenchError(f"{path}: method_params maps method names to parameter grids")
+    from .methods import method_name
+    names = [method_name(m) for m in methods]
+    stray = sorted(set(map(str, own)) - set(names))
+    if stray:
+        raise BenchError(f"{path}: method_params names {', '.join(stray)}, not among the "
+                         f"methods ({', '.join(names)})")
+    own = {str(k): tuple(expand_grid(v, where=f"{path}: method_params: {k}"))
+           for k, v in own.items()}
     keep = spec.get("keep_meshes", 3)
     if not (isinstance(keep, int) and keep >= 0):
         raise BenchError(f"{path}: keep_meshes must be an integer >= 0, got {keep!r}")
@@ -201,13 +236,16 @@ def load_sweep(path) -> Sweep:
         scanner=tuple(expand_grid(scanner, where=f"{path}: scanner")),
         recon=tuple(expand_grid(spec.get("recon") or {}, where=f"{path}: recon")),
         runner=str(spec.get("runner") or DEFAULT_RUNNER), keep_meshes=keep,
-        body_paths=body_paths, source=text)
+        body_paths=body_paths, source=text, method_params=own)
     for name, values in (("bodies", bodies), ("seeds", seeds), ("methods", methods)):
         if len(set(values)) != len(values):
             raise BenchError(f"{path}: {name} lists a value twice")
     runner = _runner(sweep.runner, where)
     if hasattr(runner, "recon_free_methods"):
-        sweep = dataclasses.replace(sweep, recon_free=tuple(runner.recon_free_methods()))
+        import inspect
+        free = runner.recon_free_methods
+        takes = bool(inspect.signature(free).parameters)
+        sweep = dataclasses.replace(sweep, recon_free=tuple(free(methods) if takes else free()))
     check = getattr(runner, "check", None)
     if check is not None:
         try:
@@ -549,7 +587,8 @@ class _DaskEngine:
 
 
 class _MeshKeeper:
-    """Keeps, per method, the meshes of the ``k`` worst jobs (spurious + bridging area)."""
+    """Keeps, per method, the meshes of the ``k`` worst jobs (spurious + bridging area), at most
+    one per scan (its worst setting), so that the pictures show distinct cases."""
 
     def __init__(self, store: ResultStore, k: int):
         self.store, self.k = store, k
@@ -558,17 +597,24 @@ class _MeshKeeper:
         if ids:
             table = store.read()
             for _, row in table[table["job_id"].isin(ids)].iterrows():
-                self.kept.setdefault(row["method"], []).append((_badness(row), row["job_id"]))
+                self.kept.setdefault(row["method"], []).append(
+                    (_badness(row), row["job_id"], row.get("scan_id")))
 
     def offer(self, job: Job, row: dict, mesh: dict) -> None:
         bad = _badness(row)
         if self.k == 0 or not math.isfinite(bad):
             return
-        kept = self.kept.setdefault(job.method, [])
+        kept = self.kept.setdefault(row.get("method", job.method), [])
+        same = [entry for entry in kept if entry[2] == job.scan_id]
+        if same:   # one mesh per scan, its worst setting: the pictures show distinct cases
+            if bad <= same[0][0]:
+                return
+            self.store.drop_mesh(same[0][1])
+            kept.remove(same[0])
         if len(kept) >= self.k and bad <= min(kept)[0]:
             return
         self.store.put_mesh(job.job_id, mesh)
-        kept.append((bad, job.job_id))
+        kept.append((bad, job.job_id, job.scan_id))
         kept.sort(reverse=True)
         while len(kept) > self.k:
             self.store.drop_mesh(kept.pop()[1])
@@ -720,16 +766,21 @@ def check(sweep: Sweep) -> None:
     from bodyscan.poses.body import load_body
     from bodyscan.recon import ReconParams
 
-    from .bench import METHODS
-    from .peers import PEERS, available_peers
+    from .methods import resolve
+    from .peers import available_peers
 
-    bad = [m for m in sweep.methods if m not in METHODS]
-    if bad:
-        raise ValueError(f"unknown method(s) {', '.join(bad)} (known: {', '.join(METHODS)})")
-    missing = [m for m in sweep.methods if m in PEERS and m not in available_peers()]
+    methods = [resolve(m) for m in sweep.methods]     # MethodError is a ValueError
+    missing = [m.name for m in methods if m.kind == "peer" and m.name not in available_peers()]
     if missing:
         raise ValueError(f"method(s) {', '.join(missing)} need the peers extra: "
                          "pip install 'bodyscan[peers]'")
+    for m in methods:
+        if not m.builtin:
+            for setting in sweep.settings(m.spec):
+                m.check_params(setting)
+        elif m.name in sweep.method_params:
+            where = "go under recon" if m.kind == "recon" else "are fixed (benchmarks.peers)"
+            raise ValueError(f"method_params: {m.name} is built in; its parameters {where}")
     for body in sweep.bodies:
         load_body(sweep.body_paths.get(body, body)).require_ground_truth("scoring")
     for setting in sweep.scanner:
@@ -738,11 +789,14 @@ def check(sweep: Sweep) -> None:
         ReconParams.from_overrides(setting)
 
 
-def recon_free_methods() -> tuple:
-    """Methods that take no reconstruction parameters (the peers)."""
+def recon_free_methods(methods=()) -> tuple:
+    """Methods that take no reconstruction parameters: the peers, and methods of yours (their
+    own parameters are swept under ``method_params``)."""
+    from .methods import builtin_methods
     from .peers import PEERS
 
-    return tuple(PEERS)
+    builtin = builtin_methods()
+    return tuple(PEERS) + tuple(m for m in methods if m not in builtin)
 
 
 def scan(body: str, scanner: dict, seed: int) -> Scanned:
@@ -765,15 +819,16 @@ def scan(body: str, scanner: dict, seed: int) -> Scanned:
 def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
     """Default runner: reconstruct one scan and score it with `benchmarks.bench.evaluate`.
 
-    The row has bench's metrics and times (``time_fit_s`` is the shared fit's time, counted in
-    full for each job), ``time_scan_s``, and ``_mesh`` for the report's pictures.
+    The row has bench's metrics and times (``time_fit_s`` is the shared fit's time, reported
+    with each job and not in its ``time_total_s``), ``time_scan_s``, and ``_mesh`` for the
+    report's pictures. A method of yours gets ``recon`` as its own parameters.
     """
     from bodyscan.recon import ReconParams
 
     from .bench import RECON_METHODS
     from .bench import evaluate as bench_evaluate
 
-    fit, seconds, params = None, 0.0, None
+    fit, seconds, params = None, 0.0, (dict(recon) or None)
     if method in RECON_METHODS:
         params = ReconParams.from_overrides(recon)
         fit = _fit_for(scanned, params)

@@ -84,9 +84,12 @@ def _sweep(args) -> int:
 
         jobs = sweep.jobs()
         stored = len({j.job_id for j in jobs} & ResultStore(args.out).finished())
+        from .methods import method_name
+
+        per = ", ".join(f"{method_name(m)} {len(sweep.settings(m))}" for m in sweep.methods)
         print(f"sweep {sweep.name}: {len(jobs)} jobs = {len(sweep.bodies)} bodies x "
               f"{len(sweep.seeds)} seeds x {len(sweep.scanner)} scanner settings x "
-              f"({len(sweep.methods)} methods x {len(sweep.recon)} recon settings, peers once); "
+              f"settings per method ({per}); "
               f"{len({j.scan_id for j in jobs})} scans; {stored} already stored in {args.out}")
         return 0
     # SIGTERM ends the run like Ctrl-C: stored results stay, workers are told to stop

@@ -68,12 +68,16 @@ class Reconstruction:
         return trimesh.Trimesh(self.vertices, self.faces, process=False)
 
     def write(self, path) -> Path:
-        """Write the mesh as binary PLY with a face property ``section``; see `write_mesh`."""
-        return write_mesh(path, self.vertices, self.faces, self.face_section)
+        """Write the mesh as binary PLY with the points' sections and a face property ``section``;
+        see `write_mesh`."""
+        return write_mesh(path, self.vertices, self.faces, self.face_section, self.point_sections)
 
 
-def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.ndarray) -> Path:
-    """Write a binary little-endian PLY: vertex x, y, z (float32), face vertex_indices and section.
+def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.ndarray,
+               point_sections: np.ndarray | None = None) -> Path:
+    """Write a binary little-endian PLY: vertex x, y, z (double, so that the vertices are the
+    cloud's points exactly) and ``sections`` (bit s set: the vertex is in section s), face
+    vertex_indices and section.
 
     Parameters
     ----------
@@ -81,15 +85,22 @@ def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.n
     vertices : (n, 3) float, metres
     faces : (m, 3) int
     face_section : (m,) int
+    point_sections : (n, 11) bool, optional
+        Section memberships of the vertices (written as zero without).
     """
     path = Path(path)
-    v = np.asarray(vertices, dtype="<f4")
+    v = np.zeros(len(vertices), dtype=[("xyz", "<f8", (3,)), ("sections", "<u2")])
+    v["xyz"] = np.asarray(vertices, dtype=np.float64)
+    if point_sections is not None:
+        bits = np.asarray(point_sections, bool).reshape(len(v), -1)
+        v["sections"] = (bits * (1 << np.arange(bits.shape[1]))).sum(axis=1)
     f = np.asarray(faces)
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment bodyscan reconstruction; face section indexes "
-        + " ".join(SECTIONS) + f"\nelement vertex {len(v)}\nproperty float x\nproperty float y\n"
-        f"property float z\nelement face {len(f)}\nproperty list uchar int vertex_indices\n"
-        "property uchar section\nend_header\n"
+        + " ".join(SECTIONS) + "; vertex sections: bit s set for section s"
+        + f"\nelement vertex {len(v)}\nproperty double x\nproperty double y\n"
+        f"property double z\nproperty ushort sections\nelement face {len(f)}\n"
+        "property list uchar int vertex_indices\nproperty uchar section\nend_header\n"
     )
     rec = np.zeros(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,)), ("section", "u1")])
     rec["n"] = 3

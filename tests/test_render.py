@@ -67,7 +67,7 @@ FRONT_BLUE = box((-0.3, -0.3, 1.0), (0.1, 0.1, 0.1), BLUE)
 def test_views_follow_the_body_conventions(tmp_path, backend):
     v, f, c = scene(LEFT_RED, RIGHT_GREEN)
     out = render.render_mesh(v, f, c, tmp_path / "a.png", views=("front", "back", "side"),
-                             size=(SIZE, SIZE), backend=backend)
+                             size=(SIZE, SIZE), backend=backend, legend=False)
     front, back, side = views_of(out, 3)
     # front: looking along +y at a subject facing -y, the subject's left (+x) is on the image right
     assert columns(mask(front, 0))[0] > columns(mask(front, 1))[1]
@@ -82,7 +82,7 @@ def test_whole_mesh_is_framed_with_the_documented_margin(tmp_path, backend):
     # larger half-extent (0.4 m) times the margin, square, centred on the bounding box
     v, f, c = scene(LEFT_RED, RIGHT_GREEN)
     out = render.render_mesh(v, f, c, tmp_path / "b.png", views=("front",), size=(SIZE, SIZE),
-                             backend=backend)
+                             backend=backend, legend=False)
     (front,) = views_of(out, 1)
     half = 0.4 * render._MARGIN
     px = lambda x: (x + half) / (2 * half) * SIZE  # noqa: E731  metres -> pixel column
@@ -95,7 +95,7 @@ def test_whole_mesh_is_framed_with_the_documented_margin(tmp_path, backend):
 def test_nearer_faces_hide_farther_ones(tmp_path, backend):
     v, f, c = scene(RIGHT_GREEN, FRONT_BLUE)
     out = render.render_mesh(v, f, c, tmp_path / "c.png", views=("front", "back"),
-                             size=(SIZE, SIZE), backend=backend)
+                             size=(SIZE, SIZE), backend=backend, legend=False)
     front, back = views_of(out, 2)
     assert mask(front, 2).sum() > 0.02 * SIZE * SIZE      # blue in front of green
     assert mask(back, 2).sum() == 0                        # hidden behind green from the back
@@ -106,7 +106,8 @@ def test_close_up_frames_the_sphere_and_cuts_away_what_is_in_front(tmp_path, bac
     # 0.12 m slab, so it must not hide the green box
     v, f, c = scene(RIGHT_GREEN, FRONT_BLUE)
     out = render.render_mesh(v, f, c, tmp_path / "d.png", views=("front",), size=(SIZE, SIZE),
-                             close_up=((-0.3, -0.1, 1.0), 0.12), backend=backend)
+                             close_up=((-0.3, -0.1, 1.0), 0.12), backend=backend,
+                             legend=False)
     (front,) = views_of(out, 1)
     assert mask(front, 2).sum() == 0
     # the green box (x in [-0.4, -0.2]) fills columns of x in [-0.4, -0.2] within [-0.42, -0.18]
@@ -117,14 +118,33 @@ def test_close_up_frames_the_sphere_and_cuts_away_what_is_in_front(tmp_path, bac
 def test_colours_uint8_and_float_agree_and_title_adds_a_band(tmp_path):
     v, f, c = scene(LEFT_RED, RIGHT_GREEN)
     a = render.render_mesh(v, f, c, tmp_path / "f.png", views=("front",), size=(SIZE, SIZE),
-                           backend="matplotlib")
+                           backend="matplotlib", legend=False)
     b = render.render_mesh(v, f, (c * 255).astype(np.uint8), tmp_path / "u.png",
-                           views=("front",), size=(SIZE, SIZE), backend="matplotlib")
+                           views=("front",), size=(SIZE, SIZE), backend="matplotlib", legend=False)
     assert np.array_equal(np.asarray(Image.open(a)), np.asarray(Image.open(b)))
     t = render.render_mesh(v, f, c, tmp_path / "sub" / "t.png", views=("front", "side"),
                            size=(SIZE, SIZE), title="hello", backend="matplotlib")
     w, h = Image.open(t).size
     assert w == 2 * SIZE and h > SIZE
+
+
+def test_legend_shows_every_section_colour_under_the_views(tmp_path):
+    """The colour key (issue 18): a swatch of every section colour, red and grey, drawn below
+    the views, so a reader can tell the sections apart; the view names sit above the views."""
+    v, f, c = scene(LEFT_RED, RIGHT_GREEN)
+    plain = render.render_mesh(v, f, c, tmp_path / "p.png", views=("front", "side", "back"),
+                               size=(SIZE, SIZE), backend="matplotlib", legend=False)
+    keyed = render.render_mesh(v, f, c, tmp_path / "k.png", views=("front", "side", "back"),
+                               size=(SIZE, SIZE), backend="matplotlib")
+    a, b = np.asarray(Image.open(plain).convert("RGB")), np.asarray(Image.open(keyed).convert("RGB"))
+    assert b.shape[1] == a.shape[1] and b.shape[0] > a.shape[0]
+    key = b[-(b.shape[0] - a.shape[0]) + 8:]           # below the views (and the name band)
+    found = {tuple(px) for px in key.reshape(-1, 3)}
+    items = render.legend_items()
+    assert len(items) == 13
+    for _, color in items:
+        rgb = tuple(int(round(255 * x)) for x in color)
+        assert rgb in found, rgb
 
 
 def test_fallback_to_matplotlib_when_gl_fails_in_process(tmp_path, monkeypatch):
@@ -137,7 +157,7 @@ def test_fallback_to_matplotlib_when_gl_fails_in_process(tmp_path, monkeypatch):
     v, f, c = scene(LEFT_RED, RIGHT_GREEN)
     with pytest.warns(render.RenderFallbackWarning, match="matplotlib"):
         out = render.render_mesh(v, f, c, tmp_path / "g.png", views=("front",),
-                                 size=(SIZE, SIZE))
+                                 size=(SIZE, SIZE), legend=False)
     (front,) = views_of(out, 1)
     assert mask(front, 0).sum() > 0 and mask(front, 1).sum() > 0
     with pytest.raises(RuntimeError, match="no GL"):
@@ -151,7 +171,7 @@ def test_fallback_with_an_unusable_gl_platform_in_a_fresh_process(tmp_path):
         from bodyscan.benchmarks import render
         m = trimesh.creation.box(extents=(0.2, 0.2, 0.2))
         render.render_mesh(m.vertices, m.faces, np.full((12, 3), 0.5), {str(tmp_path / 'x.png')!r},
-                           size=(64, 64))
+                           size=(64, 64), legend=False)
     """)
     env = {k: v for k, v in os.environ.items()
            if k not in ("DISPLAY", "WAYLAND_DISPLAY", "BODYSCAN_RENDERER")}
@@ -165,9 +185,10 @@ def test_fallback_with_an_unusable_gl_platform_in_a_fresh_process(tmp_path):
 
 def test_gl_matches_matplotlib(tmp_path):
     v, f, c = scene(LEFT_RED, RIGHT_GREEN, FRONT_BLUE)
-    a = render.render_mesh(v, f, c, tmp_path / "gl.png", size=(SIZE, SIZE), backend="pyrender")
+    a = render.render_mesh(v, f, c, tmp_path / "gl.png", size=(SIZE, SIZE), backend="pyrender",
+                           legend=False)
     b = render.render_mesh(v, f, c, tmp_path / "mpl.png", size=(SIZE, SIZE),
-                           backend="matplotlib")
+                           backend="matplotlib", legend=False)
     for va, vb in zip(views_of(a, 3), views_of(b, 3)):
         for channel in range(3):
             assert (mask(va, channel) != mask(vb, channel)).mean() < 0.02

@@ -259,3 +259,52 @@ def test_report_of_only_failures(tmp_path):
     fill(tmp_path / "s", fail=10_000, meshes=0)
     index = report.build_report(tmp_path / "s", tmp_path / "rep")
     assert "Failed jobs" in index.read_text()
+
+
+def test_best_settings_state_their_objective_and_flat_axes_are_flagged(built):
+    """Issue 18: "best settings" by F_seen@5mm within a spurious and bridging budget, the
+    objective written out; an axis that moves no tracked metric beyond the gate's tolerance is
+    flagged; the worst cases drawn are distinct meshes."""
+    root, _ = built
+    md = (root / "rep" / "report.md").read_text()
+    best = md.split("## Best reconstruction settings")[1].split("\n## ")[0]
+    assert "Objective: maximise the mean F seen@5mm" in best and "spurious ≤" in best
+    first = next(l for l in best.splitlines() if l.startswith("| proposed |"))
+    # F depends on t_d alone (0.9 - t_d / 10): t_d 0.1 is best, and within budget (less spurious)
+    assert "t_d=0.1" in first and "0.890" in first
+    # settings differing only in parameters without effect on the tracked metrics share a row
+    assert "identical results" not in first or "more setting" in first
+    effects = md.split("## Which swept parameters matter")[1].split("\n## ")[0]
+    verdicts = {(cells[1].strip(), cells[2].strip()): cells[-2].strip()
+                for cells in (l.split("|") for l in effects.splitlines() if l.startswith("| ")
+                              and not l.startswith("| parameter"))}
+    assert verdicts[("t_n_factor", "proposed")] == "no effect beyond noise"   # spurious +0.2 points
+    assert verdicts[("mesh_theta", "proposed")] == "no effect beyond noise"   # bridging +0.1 points
+    assert verdicts[("t_d", "proposed")].startswith("moves")
+
+
+def test_worst_cases_are_distinct_meshes(tmp_path):
+    """Three settings of an axis without effect give one mesh under three job ids (the paper
+    sweep drew the same mesh three times): the report draws one mesh per scan, its worst."""
+    store = ResultStore(tmp_path / "sweep").open_for_writing()
+    mesh = trimesh.creation.capsule(height=1.0, radius=0.15, count=[16, 16])
+    cases = [("s-standing", "standing", 0.1, 0.05), ("s-standing", "standing", 0.3, 0.05),
+             ("s-standing", "standing", 0.5, 0.05), ("s-standing", "standing", 0.7, 0.04),
+             ("s-t_pose", "t_pose", 0.1, 0.01)]
+    for i, (scan, body, t_n, spurious) in enumerate(cases):
+        job = Job(f"job{i}", scan, body, 0, {"preset": "paper"}, "proposed",
+                  {"t_d": 0.3, "t_n_factor": t_n})
+        row = job.row()
+        row.update(status="ok", error=None, spurious_area_fraction=spurious,
+                   bridging_area_fraction=0.01, n_faces=len(mesh.faces), **{"fscore_seen@5mm": 0.9})
+        store.put(row)
+        store.put_mesh(job.job_id, {"vertices": mesh.vertices, "faces": mesh.faces,
+                                    "face_section": np.ones(len(mesh.faces), int),
+                                    "spurious": np.zeros(len(mesh.faces), bool),
+                                    "bridging": np.zeros(len(mesh.faces), bool), "closeups": {}})
+    store.write_json("meta.json", {"sweep": "same", "runs": []})
+    report.build_report(tmp_path / "sweep", tmp_path / "rep")
+    md = (tmp_path / "rep" / "report.md").read_text()
+    drawn = re.findall(r"!\[#(\d+) proposed / (\w+) \(([^)]*)\)\]", md)
+    assert [(n, body) for n, body, _ in drawn] == [("1", "standing"), ("2", "t_pose")], drawn
+    assert "t_n_factor=0.1" in drawn[0][2]      # the first of the equally bad settings
