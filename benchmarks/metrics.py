@@ -280,18 +280,33 @@ class _Pieces:
         d, f, c = self.closest(p, row, idx[row, col])
         return d, f, c, (d + self.radius <= dk[:, -1]) | (k == self.tree.n)
 
-    def within(self, p, bound):
-        """Nearest of all pieces that can lie within ``bound`` (n,) of each point: exact."""
-        lists = self.tree.query_ball_point(p, bound + self.radius + 1e-12)
-        cnt = np.array([len(x) for x in lists], dtype=np.int64)
-        cand = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
-        return self.closest(p, np.repeat(np.arange(len(p)), cnt), cand)
+    def within(self, p, bound, max_pairs: int = 2_000_000):
+        """Nearest of all pieces that can lie within ``bound`` (n,) of each point: exact.
+
+        Points are taken in batches of at most ``max_pairs`` (point, piece) candidates (but at least
+        one point), so that memory stays bounded however far the points lie."""
+        reach = bound + self.radius + 1e-12
+        counts = np.asarray(self.tree.query_ball_point(p, reach, return_length=True), dtype=np.int64)
+        ends = np.searchsorted(np.cumsum(counts), np.arange(1, 1 + counts.sum() // max_pairs) * max_pairs)
+        d, f, c = np.empty(len(p)), np.empty(len(p), dtype=np.int64), np.empty((len(p), 3))
+        start = 0
+        for end in [*np.unique(np.maximum(ends, 1)), len(p)]:
+            end = int(min(max(end, start + 1), len(p)))
+            if end <= start:
+                continue
+            lists = self.tree.query_ball_point(p[start:end], reach[start:end])
+            cnt = counts[start:end]
+            cand = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
+            d[start:end], f[start:end], c[start:end] = self.closest(
+                p[start:end], np.repeat(np.arange(end - start), cnt), cand)
+            start = end
+        return d, f, c
 
 
 #: Numpy backend: a query point farther than this from the surface (metres) keeps the nearest of
-#: the pieces of its 4 k nearest centroids, exact to a piece's radius (under 5 mm, 5 % of the
-#: distance), instead of the search over every piece in reach: on a mesh of another body that
-#: search took 170 s and 3.2 GB (`bodyscan score`), for metrics that saturate at 1 cm.
+#: the pieces of its k nearest centroids, exact to twice a piece's radius (under 1 cm, a tenth of
+#: the distance), instead of the searches over more pieces: on a mesh of another body those took
+#: 170 s and 3.2 GB (`bodyscan score`), for metrics that saturate at 1 cm.
 EXACT_WITHIN = 0.1
 #: Memory of scoring per surface sample and per mesh triangle, bytes (`score_mesh`'s guard).
 BYTES_PER_SAMPLE, BYTES_PER_FACE = 600, 400
@@ -382,10 +397,10 @@ class SurfaceIndex:
         for s in range(0, n, chunk):
             p = points[s:s + chunk]
             d, f, c, exact = self._fine.nearest_k(p, self.k)
-            redo = np.nonzero(~exact)[0]
+            redo = np.nonzero(~exact & (d <= EXACT_WITHIN))[0]
             if len(redo):   # farther from the surface: four times the pieces, then all in reach
                 d[redo], f[redo], c[redo], exact = self._fine.nearest_k(p[redo], 4 * self.k)
-                redo = redo[~exact & (d[redo] <= EXACT_WITHIN)]
+                redo = redo[~exact]
             if len(redo):
                 d[redo], f[redo], c[redo] = self._coarse.within(p[redo], d[redo])
             dist[s:s + len(p)], face[s:s + len(p)], closest[s:s + len(p)] = d, f, c
