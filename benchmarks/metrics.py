@@ -247,6 +247,10 @@ def split_long_edges(triangles: np.ndarray, max_edge: float) -> tuple[np.ndarray
     return np.concatenate(done_t), np.concatenate(done_o)
 
 
+#: Numpy backend: (point, piece) pairs examined at once; a pair costs about 400 bytes.
+MAX_PAIRS = 250_000
+
+
 class _Pieces:
     """Pieces of a mesh's triangles no longer than ``max_edge``, with a k-d tree of centroids."""
 
@@ -280,7 +284,7 @@ class _Pieces:
         d, f, c = self.closest(p, row, idx[row, col])
         return d, f, c, (d + self.radius <= dk[:, -1]) | (k == self.tree.n)
 
-    def within(self, p, bound, max_pairs: int = 2_000_000):
+    def within(self, p, bound, max_pairs: int = MAX_PAIRS):
         """Nearest of all pieces that can lie within ``bound`` (n,) of each point: exact.
 
         Points are taken in batches of at most ``max_pairs`` (point, piece) candidates (but at least
@@ -308,8 +312,9 @@ class _Pieces:
 #: the distance), instead of the searches over more pieces: on a mesh of another body those took
 #: 170 s and 3.2 GB (`bodyscan score`), for metrics that saturate at 1 cm.
 EXACT_WITHIN = 0.1
-#: Memory of scoring per surface sample and per mesh triangle, bytes (`score_mesh`'s guard).
-BYTES_PER_SAMPLE, BYTES_PER_FACE = 600, 400
+#: Memory of scoring per surface sample and per mesh triangle, and the closest-point queries'
+#: working set (8192 points x 96 pieces at most, 400 bytes a pair), bytes (`score_mesh`'s guard).
+BYTES_PER_SAMPLE, BYTES_PER_FACE, QUERY_BYTES = 600, 400, 8192 * 96 * 400
 
 
 class SurfaceIndex:
@@ -373,7 +378,7 @@ class SurfaceIndex:
             return self.query(points)[0]
         return self._fine.tree.query(np.asarray(points, dtype=np.float64).reshape(-1, 3), k=1)[0]
 
-    def query(self, points: np.ndarray, chunk: int = 32768
+    def query(self, points: np.ndarray, chunk: int = 8192
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest points of the mesh to ``points`` (n, 3).
 
@@ -727,7 +732,7 @@ def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt
     params = truth.params
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    require_memory(2 * params.n_samples * BYTES_PER_SAMPLE + len(faces) * BYTES_PER_FACE,
+    require_memory(2 * params.n_samples * BYTES_PER_SAMPLE + len(faces) * BYTES_PER_FACE + QUERY_BYTES,
                    f"scoring {len(faces):,} triangles with {params.n_samples:,} samples per surface",
                    "lower --metric n_samples or simplify the mesh", error=BenchError)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
