@@ -131,7 +131,10 @@ class ResultStore:
         succeeded)."""
         if not self.parts.is_dir() or not self._listing():
             return set()
-        table = self.read(columns=["job_id", "status"])   # sets damaged parts aside
+        try:
+            table = self.read(columns=["job_id", "status"])   # sets damaged parts aside
+        except FileNotFoundError:                             # every part was damaged
+            return set()
         if include_failed:
             return set(table["job_id"]) if "job_id" in table.columns else set()
         return set(table.loc[table["status"] == "ok", "job_id"])
