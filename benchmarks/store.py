@@ -117,7 +117,9 @@ class ResultStore:
 
     def write_json(self, name: str, data: dict) -> Path:
         """Write ``DIR/name`` as JSON, atomically."""
-        text = json.dumps(data, indent=2, sort_keys=True, default=str)
+        from bodyscan._io import dumps
+
+        text = dumps(data, indent=2, sort_keys=True)   # strict: NaN becomes null
         return _atomic_write(self.root / name, lambda path: Path(path).write_text(text))
 
     def write_text(self, name: str, text: str) -> Path:
