@@ -20,7 +20,8 @@ and `score` (score a given mesh).
 
 Measurements: ``time_<stage>_s`` are wall-clock seconds of each stage as the method reports them
 (``time_total_s`` is the whole reconstruction, the posture fit included); ``peak_memory_mb`` is
-the peak resident memory of the process above its level when the reconstruction started, sampled
+the peak resident memory of the process above its level when the reconstruction started
+(``peak_memory_scan_mb``, ``peak_memory_fit_mb`` and ``peak_memory_score_mb``: of those stages), sampled
 every 5 ms by a thread reading ``/proc/self/statm`` (so it sees C++ allocations of the peers as
 well as numpy's; memory freed earlier and reused counts as free, so it is a lower bound). Where
 ``/proc`` is missing it is the growth of ``ru_maxrss``.
@@ -290,8 +291,10 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
     row.update({f"time_{k}_s": float(v) for k, v in times.items()})
     row["peak_memory_mb"] = float(mem.peak_mb)
     t0 = time.perf_counter()
-    metrics = score(vertices, faces, body, scan, metric_params=metric_params, keep_masks=True, **extra)
+    with PeakMemory() as score_mem:
+        metrics = score(vertices, faces, body, scan, metric_params=metric_params, keep_masks=True, **extra)
     row["time_score_s"] = time.perf_counter() - t0
+    row["peak_memory_score_mb"] = float(score_mem.peak_mb)
     masks = {k: metrics.pop(k) for k in [k for k in metrics if k.startswith("_")]}
     row.update(metrics)
     row.update({k.replace("metric_", "metric."): v for k, v in metric_params.as_columns().items()})
@@ -476,7 +479,8 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
             cfg = simulator.preset(preset, **{**config.scanner, "k": k})
             t0 = time.perf_counter()
             try:
-                sc = simulator.scan(body, cfg, seed=config.seed)
+                with PeakMemory() as scan_mem:
+                    sc = simulator.scan(body, cfg, seed=config.seed)
             except Exception as exc:  # every method of this scan fails with it
                 error = f"scan failed: {type(exc).__name__}: {exc}"
                 out += [({"body": body.name, "method": m.name, "preset": preset, "k": float(k),
@@ -498,7 +502,10 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
             for m in methods:
                 is_recon = m.kind == "recon"
                 base = {"body": body.name, "method": m.name, "preset": preset, "k": float(k),
-                        "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s}
+                        "seed": config.seed, **scan_columns(sc), "time_scan_s": scan_s,
+                        "peak_memory_scan_mb": float(scan_mem.peak_mb)}
+                if is_recon:
+                    base["peak_memory_fit_mb"] = float(fit_mb)
                 caught = list(fit_warn) if is_recon else []
                 try:
                     if is_recon and fit_error:

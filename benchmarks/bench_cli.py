@@ -266,6 +266,7 @@ def score_command(args) -> int:
     if scale > 10 * body.height:
         raise BenchError(f"{args.mesh}: the mesh is {scale:.4g} units across; coordinates must be "
                          "metres, like the body")
+    _warn_if_other_body(vertices, body, _metric_params(args.metric), args.mesh)
     point_sections, point_index = None, None
     if scan is not None:
         from scipy.spatial import cKDTree
@@ -290,6 +291,26 @@ def score_command(args) -> int:
     else:
         print(text)
     return 0
+
+
+#: `score` warns when fewer of the mesh's vertices than this lie within `MATCH_DISTANCE` of the body.
+MATCH_FRACTION, MATCH_DISTANCE = 0.5, 0.03
+
+
+def _warn_if_other_body(vertices, body, metric_params, where) -> None:
+    """Warn (one line) when the mesh does not lie on the body: a mesh of another body, or moved."""
+    import warnings
+
+    import numpy as np
+
+    from .bench import ground_truth
+
+    step = max(1, len(vertices) // 20000)
+    near = ground_truth(body, metric_params).index.upper_bound(vertices[::step]) <= MATCH_DISTANCE
+    if near.mean() < MATCH_FRACTION:
+        warnings.warn(f"{where}: only {100 * near.mean():.0f} % of the mesh's vertices lie within "
+                      f"{100 * MATCH_DISTANCE:g} cm of the body {body.name!r}: is it a mesh of this body, "
+                      "in the body's frame (metres)?", stacklevel=2)
 
 
 def _point_sections(mesh, faces, point_index, n_points):

@@ -247,6 +247,10 @@ def split_long_edges(triangles: np.ndarray, max_edge: float) -> tuple[np.ndarray
     return np.concatenate(done_t), np.concatenate(done_o)
 
 
+#: Numpy backend: (point, piece) pairs examined at once; a pair costs about 400 bytes.
+MAX_PAIRS = 250_000
+
+
 class _Pieces:
     """Pieces of a mesh's triangles no longer than ``max_edge``, with a k-d tree of centroids."""
 
@@ -280,12 +284,37 @@ class _Pieces:
         d, f, c = self.closest(p, row, idx[row, col])
         return d, f, c, (d + self.radius <= dk[:, -1]) | (k == self.tree.n)
 
-    def within(self, p, bound):
-        """Nearest of all pieces that can lie within ``bound`` (n,) of each point: exact."""
-        lists = self.tree.query_ball_point(p, bound + self.radius + 1e-12)
-        cnt = np.array([len(x) for x in lists], dtype=np.int64)
-        cand = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
-        return self.closest(p, np.repeat(np.arange(len(p)), cnt), cand)
+    def within(self, p, bound, max_pairs: int = MAX_PAIRS):
+        """Nearest of all pieces that can lie within ``bound`` (n,) of each point: exact.
+
+        Points are taken in batches of at most ``max_pairs`` (point, piece) candidates (but at least
+        one point), so that memory stays bounded however far the points lie."""
+        reach = bound + self.radius + 1e-12
+        counts = np.asarray(self.tree.query_ball_point(p, reach, return_length=True), dtype=np.int64)
+        ends = np.searchsorted(np.cumsum(counts), np.arange(1, 1 + counts.sum() // max_pairs) * max_pairs)
+        d, f, c = np.empty(len(p)), np.empty(len(p), dtype=np.int64), np.empty((len(p), 3))
+        start = 0
+        for end in [*np.unique(np.maximum(ends, 1)), len(p)]:
+            end = int(min(max(end, start + 1), len(p)))
+            if end <= start:
+                continue
+            lists = self.tree.query_ball_point(p[start:end], reach[start:end])
+            cnt = counts[start:end]
+            cand = np.fromiter(itertools.chain.from_iterable(lists), dtype=np.int64, count=int(cnt.sum()))
+            d[start:end], f[start:end], c[start:end] = self.closest(
+                p[start:end], np.repeat(np.arange(end - start), cnt), cand)
+            start = end
+        return d, f, c
+
+
+#: Numpy backend: a query point farther than this from the surface (metres) keeps the nearest of
+#: the pieces of its k nearest centroids, exact to twice a piece's radius (under 1 cm, a tenth of
+#: the distance), instead of the searches over more pieces: on a mesh of another body those took
+#: 170 s and 3.2 GB (`bodyscan score`), for metrics that saturate at 1 cm.
+EXACT_WITHIN = 0.1
+#: Memory of scoring per surface sample and per mesh triangle, and the closest-point queries'
+#: working set (8192 points x 96 pieces at most, 400 bytes a pair), bytes (`score_mesh`'s guard).
+BYTES_PER_SAMPLE, BYTES_PER_FACE, QUERY_BYTES = 600, 400, 8192 * 96 * 400
 
 
 class SurfaceIndex:
@@ -349,7 +378,7 @@ class SurfaceIndex:
             return self.query(points)[0]
         return self._fine.tree.query(np.asarray(points, dtype=np.float64).reshape(-1, 3), k=1)[0]
 
-    def query(self, points: np.ndarray, chunk: int = 32768
+    def query(self, points: np.ndarray, chunk: int = 8192
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Closest points of the mesh to ``points`` (n, 3).
 
@@ -373,7 +402,7 @@ class SurfaceIndex:
         for s in range(0, n, chunk):
             p = points[s:s + chunk]
             d, f, c, exact = self._fine.nearest_k(p, self.k)
-            redo = np.nonzero(~exact)[0]
+            redo = np.nonzero(~exact & (d <= EXACT_WITHIN))[0]
             if len(redo):   # farther from the surface: four times the pieces, then all in reach
                 d[redo], f[redo], c[redo], exact = self._fine.nearest_k(p[redo], 4 * self.k)
                 redo = redo[~exact]
@@ -698,9 +727,14 @@ def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt
         Also return the per-face masks ``_spurious`` and ``_bridging`` and the per-face true
         section ``_true_section`` (for pictures).
     """
+    from bodyscan._resources import require_memory
+
     params = truth.params
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    require_memory(2 * params.n_samples * BYTES_PER_SAMPLE + len(faces) * BYTES_PER_FACE + QUERY_BYTES,
+                   f"scoring {len(faces):,} triangles with {params.n_samples:,} samples per surface",
+                   "lower --metric n_samples or simplify the mesh", error=BenchError)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
         raise BenchError(f"mesh vertices must be (V, 3), got {vertices.shape}")
     if len(faces) and (faces.min() < 0 or faces.max() >= len(vertices)):

@@ -195,8 +195,9 @@ def main(argv=None) -> int:
               f" | bridge {mean['bridge_proposed'] * 100:.2f}% (max "
               f"{max(r['bridge_proposed'] for r in rows) * 100:.2f}%, <0.5%: {nbr}/{len(rows)})")
     if a.json:
-        with open(a.json, "w") as fh:
-            json.dump(rows, fh, indent=1)
+        from bodyscan._io import write_json
+
+        write_json(a.json, rows, indent=1)
     return 0
 
 

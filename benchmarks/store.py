@@ -117,7 +117,9 @@ class ResultStore:
 
     def write_json(self, name: str, data: dict) -> Path:
         """Write ``DIR/name`` as JSON, atomically."""
-        text = json.dumps(data, indent=2, sort_keys=True, default=str)
+        from bodyscan._io import dumps
+
+        text = dumps(data, indent=2, sort_keys=True)   # strict: NaN becomes null
         return _atomic_write(self.root / name, lambda path: Path(path).write_text(text))
 
     def write_text(self, name: str, text: str) -> Path:
@@ -131,7 +133,10 @@ class ResultStore:
         succeeded)."""
         if not self.parts.is_dir() or not self._listing():
             return set()
-        table = self.read(columns=["job_id", "status"])   # sets damaged parts aside
+        try:
+            table = self.read(columns=["job_id", "status"])   # sets damaged parts aside
+        except FileNotFoundError:                             # every part was damaged
+            return set()
         if include_failed:
             return set(table["job_id"]) if "job_id" in table.columns else set()
         return set(table.loc[table["status"] == "ok", "job_id"])

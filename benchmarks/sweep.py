@@ -759,6 +759,7 @@ class Scanned:
     scan: object                          # simulator.Scan
     fits: dict = field(default_factory=dict)     # repr(FitParams) -> BodyFit, or its ReconError
     seconds: dict = field(default_factory=dict)  # "scan", and repr(FitParams) -> fit seconds
+    memory: dict = field(default_factory=dict)   # "scan", and repr(FitParams) -> fit peak MiB
 
 
 def check(sweep: Sweep) -> None:
@@ -805,10 +806,14 @@ def scan(body: str, scanner: dict, seed: int) -> Scanned:
     from bodyscan.poses.body import load_body
     from bodyscan.recon import ReconError, ReconParams
 
+    from .bench import PeakMemory
+
     loaded = load_body(body)
     started = time.perf_counter()
-    simulated = simulator.scan(loaded, _scanner_config(scanner), seed=seed)
-    scanned = Scanned(loaded, simulated, seconds={"scan": time.perf_counter() - started})
+    with PeakMemory() as mem:
+        simulated = simulator.scan(loaded, _scanner_config(scanner), seed=seed)
+    scanned = Scanned(loaded, simulated, seconds={"scan": time.perf_counter() - started},
+                      memory={"scan": mem.peak_mb})
     try:
         _fit_for(scanned, ReconParams())
     except ReconError:      # kept in scanned.fits; reported by every job that needs this fit
@@ -836,6 +841,9 @@ def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
     row = bench_evaluate(scanned.body, scanned.scan, method, params, fit=fit,
                          fit_seconds=seconds, keep_mesh=True)
     row["time_scan_s"] = scanned.seconds.get("scan", math.nan)
+    row["peak_memory_scan_mb"] = scanned.memory.get("scan", math.nan)
+    if params is not None:
+        row["peak_memory_fit_mb"] = scanned.memory.get(repr(params.fit), math.nan)
     return row
 
 
@@ -844,15 +852,19 @@ def _fit_for(scanned: Scanned, params):
     from bodyscan.recon import ReconError
     from bodyscan.recon.pipeline import check_points, estimate_fit
 
+    from .bench import PeakMemory
+
     key = repr(params.fit)
     if key not in scanned.fits:
         started = time.perf_counter()
-        try:
-            scanned.fits[key] = estimate_fit(check_points(scanned.scan.points), params,
-                                             scanned.scan.view_dir)
-        except ReconError as exc:
-            scanned.fits[key] = exc
+        with PeakMemory() as mem:
+            try:
+                scanned.fits[key] = estimate_fit(check_points(scanned.scan.points), params,
+                                                 scanned.scan.view_dir)
+            except ReconError as exc:
+                scanned.fits[key] = exc
         scanned.seconds[key] = time.perf_counter() - started
+        scanned.memory[key] = mem.peak_mb
     fit = scanned.fits[key]
     if isinstance(fit, Exception):
         raise fit

@@ -112,6 +112,10 @@ def simple_clustering(r: np.ndarray, widths: np.ndarray, t_d: float = 0.30) -> n
 
 
 # -- 3. refinement by the distance distribution ---------------------------------------------------
+#: Peak bytes per cell and histogram bin of `otsu_cells` (its float64 histograms and cumulative sums).
+BYTES_PER_CELL_BIN = 64
+
+
 def otsu_cells(cell: np.ndarray, values: np.ndarray, n_cells: int, *, bins: int = 16,
                near_band: float = 1.0, t_n_factor: float = 0.5, min_points: int = 12):
     """Per-cell Otsu threshold and single-peak test, vectorized over cells.
@@ -203,8 +207,15 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
     """
     from .model import adjacency_matrix
 
+    from bodyscan._resources import require_memory
+
+    from . import ReconError
+
     out = member.copy()
     n_cells = params.mesh_theta * params.mesh_h
+    require_memory(n_cells * params.otsu_bins * BYTES_PER_CELL_BIN,
+                   f"the T_n refinement's {params.mesh_theta} x {params.mesh_h} cells x {params.otsu_bins} bins",
+                   "lower mesh_theta, mesh_h or otsu_bins", error=ReconError)
     apart = ~adjacency_matrix() & ~np.eye(NS, dtype=bool)   # sections that do not meet at a joint
     for j, name in enumerate(SECTIONS):
         if name not in fit.sections:

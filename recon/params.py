@@ -470,7 +470,7 @@ class SurfaceParams:
     concave_height: float = field(default=0.3,  # paper: none (0 = off); chosen, see above, spacings
         metadata={"help": "concavity covers: a triangle standing this far in front of every vertex's tangent plane is removed (0 = off)", "unit": "spacings", "range": (0, 1000)})
     concave_mean_height: float = field(default=0.7,  # chosen, spacings
-        metadata={"help": "concavity covers: ... or this far in front of them on average", "unit": "spacings", "range": (0, 1000)})
+        metadata={"help": "concavity covers: a triangle standing this far in front of its vertices' tangent planes on average is removed", "unit": "spacings", "range": (0, 1000)})
     concave_min_edge: float = field(default=2.5,  # chosen, spacings (speed on dense scans, see above)
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
@@ -552,7 +552,7 @@ class FitParams:
     match_min_section_score: float = field(default=0.0,  # 2.3(2): a limb section whose volume weight is below: unfitted (chosen)
         metadata={"help": "a limb section whose volume weight is below this is unfitted", "unit": "", "range": (-100, 100)})
     match_min_shell_score: float = field(default=0.3,  # 2.3(2): ... unless placed on its seen surface, by a shell score at
-        metadata={"help": "... unless placed on its seen surface with a shell score at least this", "unit": "", "range": (-100, 100)})
+        metadata={"help": "a limb section below match_min_section_score is kept when its shell score on its seen surface is at least this", "unit": "", "range": (-100, 100)})
                                            # least this (a limb seen from one side only; chosen)
     match_shell_voxel: float = field(default=0.025,  # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
         metadata={"help": "the shell score is used only on volumes of voxels this fine", "unit": "m", "range": (0, 1)})
@@ -598,7 +598,7 @@ class FitParams:
     match_min_anchor_shift: float = field(default=0.08,  # 2.3(1): slide the torso to hang from the crown when it is off
         metadata={"help": "slide the torso to hang from the crown when it is off by more than this", "unit": "m", "range": (0, 2)})
     match_max_anchor_shift: float = field(default=0.15,  #   by more than this, and at most this far, m (chosen)
-        metadata={"help": "... and by at most this", "unit": "m", "range": (0, 2)})
+        metadata={"help": "the torso slides at most this far to hang from the crown", "unit": "m", "range": (0, 2)})
     match_crown_on_trunk: int = field(default=1,  # 2.3(1): 1 = when the head finds no crown on its own axis, the crown is sought
         metadata={"help": "1 = seek the crown on the trunk's axis when the head finds none on its own", "unit": "", "range": (0, 1)})
                                            # on the trunk's axis (`recon.match._crown_on_trunk`: the head sits on the
@@ -678,22 +678,22 @@ class FitParams:
     fit_doubt_cover: float = field(default=0.55,  # 2.3(2): an arm section both this little covered and
         metadata={"help": "an arm section covered less than this and fitted worse than fit_doubt_rms is unfitted", "unit": "", "range": (0, 1)})
     fit_doubt_rms: float = field(default=0.015,  #   fitted worse than this rms (m) is not trusted: unfitted,
-        metadata={"help": "... fitted worse than this rms", "unit": "m", "range": (0, 1)})
+        metadata={"help": "an arm section covered less than fit_doubt_cover and fitted worse than this rms is unfitted", "unit": "m", "range": (0, 1)})
     fit_doubt_min_cover: float = field(default=0.35,  #   and so is one covered less than this (chosen; 0.5 while the
         metadata={"help": "an arm section covered less than this is unfitted", "unit": "", "range": (0, 1)})
                                            #   head anchor moved the arms off their points, 4 cm on most
                                            #   scans: arm covers on the library rose 0.69 -> 0.77 mean
                                            #   when they stayed, the doubt cover by the same ratio)
     reach_candidates: int = field(default=60,  # 2.3(2): an arm listed unfitted is searched again as a chain from its
-        metadata={"help": "unfitted arm searched again from its shoulder: upper-arm directions kept for the forearm's search", "unit": "", "range": (1, 10000)})
+        metadata={"help": "arm search (reach): an unfitted arm is searched again from its shoulder; upper-arm directions kept", "unit": "", "range": (1, 10000)})
     reach_min_hand_points: int = field(default=10,  #   shoulder on the points no other section explains (`recon.reach`):
-        metadata={"help": "... points needed at the hand end", "unit": "", "range": (0, None)})
+        metadata={"help": "arm search (reach): points needed at the hand end of a found forearm", "unit": "", "range": (0, None)})
     reach_hand_fraction: float = field(default=0.3,  #   upper-arm directions kept for the forearm's search; points needed at
-        metadata={"help": "... the hand end: the last this fraction of the forearm", "unit": "", "range": (0, 1)})
+        metadata={"help": "arm search (reach): the hand end is the last this fraction of the forearm", "unit": "", "range": (0, 1)})
     reach_max_core_fraction: float = field(default=0.1,  #   the hand end (the last this fraction of the forearm, a radius beyond);
-        metadata={"help": "... points inside the columns allowed per surface point", "unit": "", "range": (0, 100)})
+        metadata={"help": "arm search (reach): points inside the columns allowed per point on the surface", "unit": "", "range": (0, 100)})
     reach_min_upper_bins: int = field(default=4,  #   points inside the columns (and past the hand) allowed per surface (hand)
-        metadata={"help": "... fifths of the upper arm holding points", "unit": "", "range": (0, 5)})
+        metadata={"help": "arm search (reach): fifths of the upper arm that must hold points", "unit": "", "range": (0, 5)})
                                            #   point; fifths of the upper arm holding points. Measured on arms_forward
                                            #   (arms held forward, seen end-on; 10 mm, k = 1, 2, 3): the true arms hold
                                            #   18-37 points at the hand end, 0-5 in the core, their upper arms 4-5 fifths
@@ -701,18 +701,18 @@ class FitParams:
                                            #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
                                            #   the true direction (chosen)
     reach_back_clearance: float = field(default=0.1,  # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
-        metadata={"help": "... a hand behind the trunk nearer its columns than this is not taken", "unit": "m", "range": (0, 2)})
+        metadata={"help": "arm search (reach): a hand behind the trunk nearer its columns than this is not taken", "unit": "m", "range": (0, 2)})
                                            #   taken (the back's own surface, 5-7 cm outside the fitted chest at the
                                            #   shoulder blades, took a cut forearm's place on standing; chosen)
     reach_max_halo_fraction: float = field(default=0.25,  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
-        metadata={"help": "... free points around the upper arm allowed per point on its surface", "unit": "", "range": (0, 100)})
+        metadata={"help": "arm search (reach): free points around the upper arm allowed per point on its surface", "unit": "", "range": (0, 100)})
                                            #   its axis) allowed per point on its surface: a limb stands apart, a patch
                                            #   of trunk the fitted torso misses spreads around a column laid on it.
                                            #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
                                            #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
                                            #   (chosen)
     reach_max_shared_fraction: float = field(default=0.5,  # 2.3(2): ... and not taken when more than this fraction of the points
-        metadata={"help": "... not taken when more than this fraction of its points lie on another section", "unit": "", "range": (0, 1)})
+        metadata={"help": "arm search (reach): not taken when more than this fraction of its points lie on another section", "unit": "", "range": (0, 1)})
                                            #   either found section is nearest to lie within fit_coverage_distance of
                                            #   another section's surface (a limb explains points no other explains).
                                            #   Measured (10 mm): found arms of arms_forward k1/k3 and cut scans at most
@@ -720,7 +720,7 @@ class FitParams:
     fit_leg_seen_cover: float = field(default=0.4,  # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
         metadata={"help": "a leg section in empty voxels is kept when its cells hold points at least this much", "unit": "", "range": (0, 1)})
     fit_leg_seen_rms: float = field(default=0.012,  #   the front and above: no inside voxels) is kept when its fitted surface's
-        metadata={"help": "... and it fits them within this rms", "unit": "m", "range": (0, 1)})
+        metadata={"help": "a leg section in empty voxels is kept when it also fits its points within this rms", "unit": "m", "range": (0, 1)})
                                            #   cells hold points at least this much and it fits them within this rms
                                            #   (m): the points show the limb the volume missed. Measured: the raised
                                            #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched

@@ -127,7 +127,7 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
 
 #: Peak bytes per voxel of `voxelize` and the volume match that follows (the inside test's
 #: int64 running maxima and minima along each axis dominate; measured, see `require_voxels`).
-BYTES_PER_VOXEL = 48
+BYTES_PER_VOXEL = 80
 
 
 def require_voxels(shape, size: float) -> None:

@@ -74,7 +74,10 @@ class Head:
 
     def __post_init__(self):
         object.__setattr__(self, "name", str(self.name))
-        check_fields(self, ScanError)
+        try:
+            check_fields(self, ScanError)
+        except ScanError as exc:
+            raise ScanError(f"head {self.name!r}: {exc}") from None
         for f in ("azimuth_deg", "height", "tilt_deg", "field_width", "field_height", "laser_roll_deg"):
             _set_number(self, f, f"head {self.name!r}: {f}")
         if self.field_width <= 0 or self.field_height <= 0:
