@@ -448,6 +448,14 @@ def skipped_peers(methods) -> dict:
             for p in PEERS if p not in method_names(methods)}
 
 
+def skipped_text(skipped: dict) -> str:
+    """``{peer: reason}`` as one line, the peers of one reason together."""
+    by: dict = {}
+    for peer, why in skipped.items():
+        by.setdefault(why, []).append(peer)
+    return "; ".join(f"{', '.join(peers)} ({why})" for why, peers in by.items())
+
+
 def _estimate_fit(scan, params):
     """The posture of ``scan`` with ``params``, and the seconds it took."""
     from bodyscan.recon.pipeline import estimate_fit
@@ -565,7 +573,7 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
          f"{jobs} process(es) -> {out}", progress)
     skipped = skipped_peers(config.methods)
     _log("bodyscan bench: methods " + ", ".join(method_names(config.methods)) + (
-        "; peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items())
+        "; peers not run: " + skipped_text(skipped)
         if skipped else "; every peer runs"), progress)
     picture_body = "standing" if "standing" in config.bodies else config.bodies[0]
     picture_case = (picture_body, config.presets[0], config.ks[0])
@@ -596,8 +604,7 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
     meshes = {r["method"]: m for r, m in pairs if m is not None}
     table = pd.DataFrame(rows)
     table.to_parquet(out / "results.parquet", index=False)
-    summary = summary_table(table) + ("\npeers not run: " + "; ".join(
-        f"{m} ({why})" for m, why in skipped.items()) if skipped else "")
+    summary = summary_table(table) + ("\npeers not run: " + skipped_text(skipped) if skipped else "")
     meta = run_metadata(config, started, jobs)
     meta["peers_not_run"] = skipped
     (out / "run.json").write_text(json.dumps(meta, indent=2, default=str))
@@ -719,7 +726,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           f"presets {', '.join(config.presets)}, k = {', '.join(f'{k:g}' for k in config.ks)}, "
           f"methods {', '.join(config.methods)}; scan seed {config.seed}. "
           f"Every number is in `results.parquet`; settings in `run.json`.", "",
-          *([f"Peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items()) + ".", ""]
+          *([f"Peers not run: {skipped_text(skipped)}.", ""]
             if skipped else []),
           shared_times(table) + ".", "",
           "## By method", "",

@@ -74,9 +74,12 @@ def unavailable_peers() -> dict:
     for pkg in sorted(set(PEERS.values())):
         try:
             __import__(pkg)
+        except ModuleNotFoundError:
+            why[pkg] = f"{pkg} is not installed: pip install 'bodyscan[peers]'"
         except Exception as exc:  # ImportError, or OSError for a missing system library (libusb)
             hint = " (apt-get install libusb-1.0-0)" if "libusb" in str(exc) else ""
-            why[pkg] = f"{pkg} does not import: {str(exc).splitlines()[0] if str(exc) else type(exc).__name__}{hint}"
+            text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            why[pkg] = f"{pkg} does not import: {text}{hint}"
     return {m: why[pkg] for m, pkg in PEERS.items() if pkg in why}
 
 
