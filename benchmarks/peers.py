@@ -74,9 +74,10 @@ def unavailable_peers() -> dict:
     for pkg in sorted(set(PEERS.values())):
         try:
             __import__(pkg)
-        except ModuleNotFoundError:
-            why[pkg] = f"{pkg} is not installed: pip install 'bodyscan[peers]'"
         except Exception as exc:  # ImportError, or OSError for a missing system library (libusb)
+            if isinstance(exc, ModuleNotFoundError) and exc.name == pkg:
+                why[pkg] = f"{pkg} is not installed: pip install 'bodyscan[peers]'"
+                continue
             hint = " (apt-get install libusb-1.0-0)" if "libusb" in str(exc) else ""
             text = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             why[pkg] = f"{pkg} does not import: {text}{hint}"
