@@ -451,6 +451,14 @@ def skipped_peers(methods) -> dict:
             for p in PEERS if p not in method_names(methods)}
 
 
+def skipped_text(skipped: dict) -> str:
+    """``{peer: reason}`` as one line, the peers of one reason together."""
+    by: dict = {}
+    for peer, why in skipped.items():
+        by.setdefault(why, []).append(peer)
+    return "; ".join(f"{', '.join(peers)} ({why})" for why, peers in by.items())
+
+
 def _estimate_fit(scan, params):
     """The posture of ``scan`` with ``params``, and the seconds it took."""
     from bodyscan.recon.pipeline import estimate_fit
@@ -461,8 +469,11 @@ def _estimate_fit(scan, params):
     return fit, time.perf_counter() - t0
 
 
-def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bool) -> list:
-    """Every scan and method of one posture: [(row, mesh or None)] (runs in a worker process)."""
+def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bool,
+                report_dir=None) -> tuple:
+    """Every scan and method of one posture, in a worker process: its rows, and the pictures
+    ``[(method, [files])]`` drawn into ``report_dir`` when it holds the picture case (drawn
+    here, beside the other postures' work, rather than after them)."""
     from bodyscan import simulator
     from bodyscan.poses.body import load_body
 
@@ -535,7 +546,11 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                         + (f" after the shared fit {fit_s:.1f} s" if is_recon else "")
                         + f", scoring {row.get('time_score_s', float('nan')):.1f} s)")
                     _log(f"  {body.name} {preset} k={k:g} {m.name}: {status}", sys.stderr)
-    return out
+    meshes = {row["method"]: mesh for row, mesh in out if mesh is not None}
+    pictures = []
+    if meshes and report_dir is not None:
+        pictures = _pictures(meshes, picture_case, Path(report_dir), sys.stderr if verbose else None)
+    return [row for row, _ in out], pictures
 
 
 def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
@@ -575,45 +590,43 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
          f"{jobs} process(es) -> {out}", progress)
     skipped = skipped_peers(config.methods)
     _log("bodyscan bench: methods " + ", ".join(method_names(config.methods)) + (
-        "; peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items())
+        "; peers not run: " + skipped_text(skipped)
         if skipped else "; every peer runs"), progress)
     picture_body = "standing" if "standing" in config.bodies else config.bodies[0]
     picture_case = (picture_body, config.presets[0], config.ks[0])
     verbose = progress is not None
     results: dict = {}
+    pictures: list = []
 
-    def finished(name, pairs):
-        results[name] = pairs
-        bad = sum(r["status"] != "ok" for r, _ in pairs)
+    def finished(name, done):
+        results[name], drawn = done
+        pictures.extend(drawn)
+        bad = sum(r["status"] != "ok" for r in results[name])
         _log(f"[{len(results)}/{len(config.bodies)} postures, {time.time() - started:.0f} s] "
              f"{name} done" + (f", {bad} failed" if bad else ""), progress)
 
     if jobs == 1 or len(config.bodies) == 1:
         for name in config.bodies:
-            finished(name, _bench_body(name, config, picture_case, verbose))
+            finished(name, _bench_body(name, config, picture_case, verbose, out))
     else:
         import multiprocessing
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=min(jobs, len(config.bodies)),
                                  mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(_bench_body, name, config, picture_case, verbose): name
+            futures = {pool.submit(_bench_body, name, config, picture_case, verbose, out): name
                        for name in config.bodies}
             for f in as_completed(futures):
                 finished(futures[f], f.result())
-    pairs = [p for name in config.bodies for p in results[name]]
-    rows = [r for r, _ in pairs]
-    meshes = {r["method"]: m for r, m in pairs if m is not None}
+    rows = [r for name in config.bodies for r in results[name]]
     table = pd.DataFrame(rows)
     from bodyscan._io import atomic_write, write_json, write_text
 
     atomic_write(out / "results.parquet", lambda tmp: table.to_parquet(tmp, index=False))
-    summary = summary_table(table) + ("\npeers not run: " + "; ".join(
-        f"{m} ({why})" for m, why in skipped.items()) if skipped else "")
+    summary = summary_table(table) + ("\npeers not run: " + skipped_text(skipped) if skipped else "")
     meta = run_metadata(config, started, jobs)
     meta["peers_not_run"] = skipped
     write_json(out / "run.json", meta, indent=2)
-    pictures = _pictures(meshes, picture_case, out, progress) if config.pictures else []
     write_text(out / "report.md", report_markdown(table, config, summary, pictures, picture_case,
                                                   skipped))
     _log(f"bodyscan bench: done in {time.time() - started:.0f} s; wrote {out}/results.parquet, "
@@ -731,7 +744,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           f"presets {', '.join(config.presets)}, k = {', '.join(f'{k:g}' for k in config.ks)}, "
           f"methods {', '.join(config.methods)}; scan seed {config.seed}. "
           f"Every number is in `results.parquet`; settings in `run.json`.", "",
-          *([f"Peers not run: " + "; ".join(f"{m} ({why})" for m, why in skipped.items()) + ".", ""]
+          *([f"Peers not run: {skipped_text(skipped)}.", ""]
             if skipped else []),
           shared_times(table) + ".", "",
           "## By method", "",

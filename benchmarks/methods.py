@@ -7,7 +7,8 @@ the same way:
   ``bpa``, ``alpha``, ``spsr`` (`benchmarks.peers`);
 - the name of an installed entry point in the group ``bodyscan.methods`` (a package of yours
   declaring ``[project.entry-points."bodyscan.methods"] mymethod = "mypkg.mod:reconstruct"``);
-- ``module.path:function``: a Python callable, importable where the benchmark runs;
+- ``module.path:function``: a Python callable, importable where the benchmark runs (installed,
+  on ``PYTHONPATH``, or in the current directory);
 - ``cmd:TEMPLATE``: an external command (``bodyscan bench --method-cmd TEMPLATE``).
 
 Any of the last two may start with ``NAME=`` to give it the name shown in the tables
@@ -96,9 +97,14 @@ class Method:
         return self.kind in ("recon", "peer")
 
     def function(self):
-        """The python method's callable (imported)."""
+        """The python method's callable, imported from the environment or, failing that, from
+        the current directory (as ``python -m`` would)."""
         import importlib
+        import os
+        import sys
 
+        if os.getcwd() not in sys.path:
+            sys.path.append(os.getcwd())
         module, _, attr = self.target.partition(":")
         try:
             fn = getattr(importlib.import_module(module), attr)

@@ -209,3 +209,16 @@ def test_reconstruct_command_runs_peers(standing_scan, tmp_path):
     got = json.loads(out.read_text())
     assert got["precision@5mm"] > 0.9 and got["matched_vertex_fraction"] > 0.99  # BPA keeps the points
     assert main(["reconstruct", str(cloud), "--method", "bpa", "--out", str(mesh), "--param", "t_d=0.3"]) == 2
+
+
+def test_skipped_peers_are_named_with_their_reason(monkeypatch):
+    from bodyscan.benchmarks import bench, peers
+
+    monkeypatch.setattr(peers, "unavailable_peers",
+                        lambda: {"spsr": "pymeshlab is not installed: pip install 'bodyscan[peers]'"})
+    skipped = bench.skipped_peers(("proposed", "simple", "bpa"))
+    assert set(skipped) == set(peers.PEERS) - {"bpa"}
+    assert skipped["spsr"].startswith("pymeshlab is not installed")
+    assert skipped["poisson"].startswith("not asked for")
+    text = bench.skipped_text(skipped)
+    assert "poisson, poisson-trimmed, alpha (not asked for" in text and "spsr (pymeshlab" in text

@@ -136,7 +136,9 @@ def test_write_mesh_round_trip(capsules, tmp_path):
     path = rec.write(tmp_path / "mesh.ply")
     m = trimesh.load(path, process=False)
     assert np.array_equal(np.asarray(m.faces), rec.faces)
-    assert np.allclose(m.vertices, rec.vertices, atol=1e-6)
+    assert np.array_equal(m.vertices, rec.vertices)          # double: the cloud's points exactly
+    bits = np.asarray(m.metadata["_ply_raw"]["vertex"]["data"]["sections"]).astype(int)
+    assert np.array_equal((bits[:, None] >> np.arange(11)) & 1 == 1, rec.point_sections)
     raw = path.read_bytes()
     assert b"property uchar section" in raw[:1000]
     sec = np.frombuffer(raw[-len(rec.faces) * 14:], dtype=[("n", "u1"), ("i", "<i4", 3), ("s", "u1")])["s"]
