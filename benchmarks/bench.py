@@ -299,7 +299,7 @@ class BenchConfig:
     Attributes
     ----------
     bodies : tuple of str
-        Library names or body files; empty: every shipped posture.
+        Library names, body files or folders of body files; empty: every shipped posture.
     presets : tuple of str
         Scanner presets (`simulator.PRESETS`).
     ks : tuple of float
@@ -329,9 +329,9 @@ class BenchConfig:
     def resolved(self) -> "BenchConfig":
         """Defaults filled in and every name checked (raises `BenchError`)."""
         from bodyscan.poses.body import load_body
-        from bodyscan.poses.library import list_bodies
+        from bodyscan.poses.library import expand_bodies
 
-        bodies = tuple(self.bodies) or tuple(list_bodies())
+        bodies = tuple(expand_bodies(self.bodies))  # a folder (a corpus) gives its body files
         if not bodies:
             raise BenchError("no postures: the pose library is empty and --bodies names none")
         for b in bodies:

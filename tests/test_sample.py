@@ -154,3 +154,21 @@ def test_rejected_postures_really_interpenetrate():
         assert np.median(w) > 0.9, w
         return
     pytest.skip("every draw of (1000, 1) was accepted or out of range of motion")
+
+
+def test_a_corpus_folder_is_read_as_its_body_files(tmp_path):
+    import shutil
+
+    from bodyscan.benchmarks.bench import BenchConfig
+    from bodyscan.poses import BodyError, expand_bodies, find_body
+
+    for name in ("t_pose", "standing"):
+        shutil.copy(find_body(name), tmp_path / f"{name}.npz")
+    files = [str(tmp_path / "standing.npz"), str(tmp_path / "t_pose.npz")]
+    assert expand_bodies([str(tmp_path)]) == files
+    assert expand_bodies(["squat", str(tmp_path)]) == ["squat"] + files
+    cfg = BenchConfig(bodies=(str(tmp_path),), methods=("simple",)).resolved()
+    assert list(cfg.bodies) == files
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(BodyError):
+        expand_bodies([str(tmp_path / "empty")])
