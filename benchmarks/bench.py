@@ -45,7 +45,7 @@ from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
-RECON_METHODS = ("proposed", "simple")
+RECON_METHODS = ("proposed", "paper", "simple")
 #: Every method the benchmark knows, in table order.
 METHODS = RECON_METHODS + tuple(PEERS)
 
@@ -431,13 +431,15 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                 t0 = time.perf_counter()
                 caught = list(fit_warn) if method in RECON_METHODS else []
                 try:
-                    if method in RECON_METHODS and fit_error:
+                    if method in RECON_METHODS and method != "paper" and fit_error:
                         raise BenchError(f"posture estimation failed: {fit_error}")
                     with warnings.catch_warnings(record=True) as more:
                         warnings.simplefilter("always")
                         row = evaluate(body, sc, method,
                                        dict(config.recon) if method in RECON_METHODS else None,
-                                       metric_params=config.metric, fit=fit, fit_seconds=fit_s,
+                                       metric_params=config.metric,
+                                       fit=None if method == "paper" else fit,  # the paper's own fit
+                                       fit_seconds=fit_s,
                                        keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
                     caught += more
                     if method in RECON_METHODS:
