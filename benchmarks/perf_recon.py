@@ -94,9 +94,9 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
               f"max {prop.max():.2f} s = {prop.max() / np.median(prop):.2f}x the median | {ratios}")
 
 
-def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
+def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: str = "proposed") -> None:
     """Print section accuracy / spurious / bridging per value of the parameter ``name`` (default
-    the T_n factor), averaged over ``bodies``."""
+    the T_n factor; ``a+b``: both set to the value), averaged over ``bodies``, with ``method``."""
     import numpy as np
 
     from bodyscan.poses import load_body
@@ -116,7 +116,8 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
         for f in factors:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                rec = reconstruct(s.points, "proposed", ReconParams.from_overrides({name: f}),
+                rec = reconstruct(s.points, method, ReconParams.from_overrides(
+                    {n: (int(f) if n.startswith("mesh_") else f) for n in name.split("+")}),
                                   view_dir=s.view_dir, fit=fit)
             tf = s.gt_face[rec.faces]
             acc = section_accuracy(rec.point_sections, s.gt_section)[
@@ -126,7 +127,7 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
             rows[f].append((acc, sp, br))
             print(f"{body_name:>18s} {name} {f:6.3g}: accuracy {acc:.4f} spurious {sp:.4f} "
                   f"bridging {br:.4f}", file=sys.stderr)
-    print(f"{name:>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  (means over "
+    print(f"{name:>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  ({method}; means over "
           f"{len(bodies)} bodies, {'oracle' if oracle else 'estimated'} posture)")
     for f in factors:
         a, sp, br = np.mean(rows[f], axis=0)
@@ -143,8 +144,8 @@ def main(argv=None) -> int:
     ap.add_argument("--method", default="proposed", choices=("proposed", "paper", "simple"))
     ap.add_argument("--sweep-tn", action="store_true", help="sweep the T_n factor instead of timing")
     ap.add_argument("--sweep", metavar="NAME", default=None,
-                    help="sweep this parameter over --factors instead of timing (accuracy is then "
-                         "'truth among the point's sections')")
+                    help="sweep this parameter (NAME+NAME: several set alike) over --factors instead of "
+                         "timing (accuracy is then 'truth among the point's sections'), with --method")
     ap.add_argument("--bodies", default="arms_close,hands_on_hips,arm_across,seated,squat,standing",
                     help="bodies of --sweep-tn and --versus, comma-separated (--versus: also files or "
                          "a corpus folder)")
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
         return 0
     if args.sweep_tn or args.sweep:
         sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle,
-                 args.sweep or "t_n_factor")
+                 args.sweep or "t_n_factor", args.method)
         return 0
 
     from bodyscan.poses import load_body
