@@ -94,7 +94,8 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
               f"max {prop.max():.2f} s = {prop.max() / np.median(prop):.2f}x the median | {ratios}")
 
 
-def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: str = "proposed") -> None:
+def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: str = "proposed",
+             base: dict | None = None) -> None:
     """Print section accuracy / spurious / bridging per value of the parameter ``name`` (default
     the T_n factor; ``a+b``: both set to the value), averaged over ``bodies``, with ``method``."""
     import numpy as np
@@ -117,7 +118,7 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: st
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 rec = reconstruct(s.points, method, ReconParams.from_overrides(
-                    {n: (int(f) if n.startswith("mesh_") else f) for n in name.split("+")}),
+                    {**(base or {}), **{n: (int(f) if n.startswith("mesh_") else f) for n in name.split("+")}}),
                                   view_dir=s.view_dir, fit=fit)
             tf = s.gt_face[rec.faces]
             acc = section_accuracy(rec.point_sections, s.gt_section)[
@@ -149,6 +150,8 @@ def main(argv=None) -> int:
     ap.add_argument("--bodies", default="arms_close,hands_on_hips,arm_across,seated,squat,standing",
                     help="bodies of --sweep-tn and --versus, comma-separated (--versus: also files or "
                          "a corpus folder)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a reconstruction parameter set in every run of the sweeps (repeatable)")
     ap.add_argument("--versus", action="store_true",
                     help="time proposed beside Poisson depth 9 and ball pivoting on the same clouds")
     ap.add_argument("--resolutions", default="0.01,0.005,0.002",
@@ -161,7 +164,7 @@ def main(argv=None) -> int:
         return 0
     if args.sweep_tn or args.sweep:
         sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle,
-                 args.sweep or "t_n_factor", args.method)
+                 args.sweep or "t_n_factor", args.method, dict(kv.split("=", 1) for kv in args.param))
         return 0
 
     from bodyscan.poses import load_body
