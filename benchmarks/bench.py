@@ -49,7 +49,7 @@ from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
-RECON_METHODS = ("proposed", "simple")
+RECON_METHODS = ("proposed", "paper", "simple")
 #: Every method the benchmark knows, in table order.
 METHODS = RECON_METHODS + tuple(PEERS)
 
@@ -320,7 +320,7 @@ class BenchConfig:
     Attributes
     ----------
     bodies : tuple of str
-        Library names or body files; empty: every shipped posture.
+        Library names, body files or folders of body files; empty: every shipped posture.
     presets : tuple of str
         Scanner presets (`simulator.PRESETS`).
     ks : tuple of float
@@ -351,9 +351,9 @@ class BenchConfig:
     def resolved(self) -> "BenchConfig":
         """Defaults filled in and every name checked (raises `BenchError`)."""
         from bodyscan.poses.body import load_body
-        from bodyscan.poses.library import list_bodies
+        from bodyscan.poses.library import expand_bodies
 
-        bodies = tuple(self.bodies) or tuple(list_bodies())
+        bodies = tuple(expand_bodies(self.bodies))  # a folder (a corpus) gives its body files
         if not bodies:
             raise BenchError("no postures: the pose library is empty and --bodies names none")
         for b in bodies:
@@ -483,7 +483,7 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
     ground_truth(body, config.metric)
     methods = [resolve(m) for m in config.methods]
     recon_only = recon_params_of(methods, config.recon)
-    uses_recon = any(m.kind == "recon" for m in methods)
+    uses_recon = any(m.kind == "recon" and m.name != "paper" for m in methods)   # the shared fit
     out = []
     for preset in config.presets:
         for k in config.ks:
@@ -519,16 +519,18 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                     base["peak_memory_fit_mb"] = float(fit_mb)
                 caught = list(fit_warn) if is_recon else []
                 try:
-                    if is_recon and fit_error:
+                    own_fit = m.name == "paper"   # the paper's method fits the posture its own way
+                    if is_recon and not own_fit and fit_error:
                         raise BenchError(f"posture estimation failed: {fit_error}")
                     with warnings.catch_warnings(record=True) as more:
                         warnings.simplefilter("always")
                         row = evaluate(body, sc, m.spec,
                                        recon_only if is_recon else method_params(m, config.recon),
-                                       metric_params=config.metric, fit=fit, fit_seconds=fit_s,
+                                       metric_params=config.metric,
+                                       fit=None if own_fit else fit, fit_seconds=fit_s,
                                        keep_mesh=config.pictures and (body_name, preset, k) == picture_case)
                     caught += more
-                    if is_recon:
+                    if is_recon and not own_fit:
                         row["peak_memory_mb"] = max(row["peak_memory_mb"], fit_mb)
                     row = {**base, **row}
                 except Exception as exc:

@@ -36,7 +36,8 @@ def register(sub) -> None:
                     "table (method x metric: mean and worst posture) and writes results.parquet, "
                     "report.md, run.json and pictures to reports/<run-id>/.")
     p.add_argument("--bodies", type=_csv, default=(), metavar="A,B",
-                   help="postures: library names or body files (default: every shipped posture)")
+                   help="postures: library names, body files or folders of them, e.g. a corpus from "
+                        "`poses sample` (default: every shipped posture)")
     p.add_argument("--presets", type=_csv, default=("paper",), metavar="P,Q",
                    help="scanner presets: paper (parallel, 10 mm) and/or scanner (perspective, 2 mm, "
                         "1 mm noise) (default paper)")

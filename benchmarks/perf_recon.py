@@ -5,6 +5,7 @@ Usage::
     python -m bodyscan.benchmarks.perf_recon [--body standing] [--dense-resolution 0.0014] [--repeat 3]
                                     [--oracle] [--method proposed]
     python -m bodyscan.benchmarks.perf_recon --sweep-tn [--bodies a,b,...] [--factors 0,0.25,...] [--oracle]
+    python -m bodyscan.benchmarks.perf_recon --versus [--bodies a,b|DIR] [--resolutions 0.01,0.005,0.002]
 
 Prints, per scan, the number of points and the best-of-``repeat`` seconds of every stage (the fit's
 stages prefixed ``fit_``, then ``coords``, ``cluster``, ``surface``, ``total``), and the process's
@@ -19,6 +20,15 @@ the mean section accuracy, spurious area fraction and bridging area fraction (be
 the way the default of ``ClusterParams.t_n_factor`` was chosen. ``--sweep NAME`` does the same for
 any parameter (accuracy: truth among the point's sections), e.g. ``--sweep joint_plane_weight
 --factors 0,0.5,1,2 --bodies <all shipped> --oracle``, the way its default was chosen.
+
+``--versus`` times the whole ``proposed`` reconstruction (posture estimation included) beside
+Open3D Poisson depth 9 and ball pivoting (`benchmarks.peers`, the ``peers`` extra: their own
+reported times, normals included) on the same clouds in one run, the three interleaved per cloud
+(best of ``--repeat``), for each body of ``--bodies`` (library names, files or a corpus folder;
+default the six of ``--sweep-tn``) at each of ``--resolutions`` (`paper` preset, k = 1). It prints
+one line per cloud, then per resolution the median ratios proposed / peer, and the largest
+proposed time over the median (issue 16's targets: faster than Poisson at every resolution, within
+3x of ball pivoting at 10 mm, no body more than 2x the median).
 """
 
 from __future__ import annotations
@@ -46,9 +56,48 @@ def time_scan(points, view_dir, method, fit, repeat):
     return best, rec
 
 
-def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
+def versus(bodies, resolutions, repeat: int = 1) -> None:
+    """Print proposed against Poisson depth 9 and ball pivoting on the same clouds (see module doc)."""
+    import numpy as np
+
+    from bodyscan.poses import expand_bodies, load_body
+    from bodyscan.simulator.config import preset
+    from bodyscan.simulator.scan import scan
+
+    from .peers import available_peers, reconstruct_peer
+
+    peers = [m for m in ("poisson", "bpa") if m in available_peers()]
+    if len(peers) < 2:
+        print("perf_recon --versus: Open3D is missing (pip install 'bodyscan[peers]')", file=sys.stderr)
+    rows = {r: [] for r in resolutions}
+    for res in resolutions:
+        for name in expand_bodies(bodies):
+            body = load_body(name)
+            s = scan(body, preset("paper", resolution=res))
+            t = {"proposed": np.inf, **{m: np.inf for m in peers}}
+            for _ in range(repeat):
+                times, _ = time_scan(s.points, s.view_dir, "proposed", None, 1)
+                t["proposed"] = min(t["proposed"], times["total"])
+                for m in peers:
+                    with warnings.catch_warnings():
+                        warnings.simplefilter("ignore")
+                        t[m] = min(t[m], reconstruct_peer(m, s.points, s.view_dir)[2]["total"])
+            rows[res].append(t)
+            print(f"{res * 1000:4.0f} mm {body.name:>24s} {len(s.points):7d} points | "
+                  + " ".join(f"{m} {v:6.2f} s" for m, v in t.items()) + " | "
+                  + " ".join(f"/{m} {t['proposed'] / t[m]:5.2f}" for m in peers), flush=True)
+    for res, rs in rows.items():
+        prop = np.array([r["proposed"] for r in rs])
+        ratios = " ".join(f"proposed/{m} median {np.median([r['proposed'] / r[m] for r in rs]):.2f}x"
+                          for m in peers)
+        print(f"SUMMARY {res * 1000:.0f} mm, {len(rs)} clouds: proposed median {np.median(prop):.2f} s, "
+              f"max {prop.max():.2f} s = {prop.max() / np.median(prop):.2f}x the median | {ratios}")
+
+
+def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: str = "proposed",
+             base: dict | None = None) -> None:
     """Print section accuracy / spurious / bridging per value of the parameter ``name`` (default
-    the T_n factor), averaged over ``bodies``."""
+    the T_n factor; ``a+b``: both set to the value), averaged over ``bodies``, with ``method``."""
     import numpy as np
 
     from bodyscan.poses import load_body
@@ -68,7 +117,8 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
         for f in factors:
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                rec = reconstruct(s.points, "proposed", ReconParams.from_overrides({name: f}),
+                rec = reconstruct(s.points, method, ReconParams.from_overrides(
+                    {**(base or {}), **{n: (int(f) if n.startswith("mesh_") else f) for n in name.split("+")}}),
                                   view_dir=s.view_dir, fit=fit)
             tf = s.gt_face[rec.faces]
             acc = section_accuracy(rec.point_sections, s.gt_section)[
@@ -78,7 +128,7 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor") -> None:
             rows[f].append((acc, sp, br))
             print(f"{body_name:>18s} {name} {f:6.3g}: accuracy {acc:.4f} spurious {sp:.4f} "
                   f"bridging {br:.4f}", file=sys.stderr)
-    print(f"{name:>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  (means over "
+    print(f"{name:>10s} {'accuracy':>9s} {'spurious':>9s} {'bridging':>9s}  ({method}; means over "
           f"{len(bodies)} bodies, {'oracle' if oracle else 'estimated'} posture)")
     for f in factors:
         a, sp, br = np.mean(rows[f], axis=0)
@@ -92,19 +142,29 @@ def main(argv=None) -> int:
                     help="resolution of the dense scan, metres (default: 0.0014)")
     ap.add_argument("--repeat", type=int, default=3, help="runs per scan, the best is shown (default: 3)")
     ap.add_argument("--oracle", action="store_true", help="use the ground-truth posture (no fit)")
-    ap.add_argument("--method", default="proposed", choices=("proposed", "simple"))
+    ap.add_argument("--method", default="proposed", choices=("proposed", "paper", "simple"))
     ap.add_argument("--sweep-tn", action="store_true", help="sweep the T_n factor instead of timing")
     ap.add_argument("--sweep", metavar="NAME", default=None,
-                    help="sweep this parameter over --factors instead of timing (accuracy is then "
-                         "'truth among the point's sections')")
+                    help="sweep this parameter (NAME+NAME: several set alike) over --factors instead of "
+                         "timing (accuracy is then 'truth among the point's sections'), with --method")
     ap.add_argument("--bodies", default="arms_close,hands_on_hips,arm_across,seated,squat,standing",
-                    help="bodies of --sweep-tn, comma-separated")
+                    help="bodies of --sweep-tn and --versus, comma-separated (--versus: also files or "
+                         "a corpus folder)")
+    ap.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+                    help="a reconstruction parameter set in every run of the sweeps (repeatable)")
+    ap.add_argument("--versus", action="store_true",
+                    help="time proposed beside Poisson depth 9 and ball pivoting on the same clouds")
+    ap.add_argument("--resolutions", default="0.01,0.005,0.002",
+                    help="scan resolutions of --versus, metres, comma-separated")
     ap.add_argument("--factors", default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
                     help="values of --sweep-tn / --sweep, comma-separated (T_n factor 1000: always split)")
     args = ap.parse_args(argv)
+    if args.versus:
+        versus(args.bodies.split(","), [float(x) for x in args.resolutions.split(",")], args.repeat)
+        return 0
     if args.sweep_tn or args.sweep:
         sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle,
-                 args.sweep or "t_n_factor")
+                 args.sweep or "t_n_factor", args.method, dict(kv.split("=", 1) for kv in args.param))
         return 0
 
     from bodyscan.poses import load_body

@@ -3,7 +3,7 @@ decided them, spurious and bridging area.
 
 Usage::
 
-    nice python -m bodyscan.benchmarks.recon_table [--bodies a,b] [--top 3] [--param NAME=VALUE ...] [--estimated]
+    nice python -m bodyscan.benchmarks.recon_table [--bodies a,b|DIR] [--top 3] [--param NAME=VALUE ...] [--estimated]
                                           [--turn DEG]
 
 Each body of the library is scanned with the `paper` preset, its posture is the oracle one
@@ -84,7 +84,7 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
     fit = estimate_posture(s.points, view_dir=s.view_dir) if estimated else fit_from_body(body)
     truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))
     params = ReconParams.from_overrides(overrides)
-    out = {"body": name}
+    out = {"body": body.name}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         for method in ("simple", "proposed"):
@@ -151,7 +151,8 @@ def format_row(row):
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--bodies", help="library bodies, comma-separated (default: all shipped)")
+    parser.add_argument("--bodies", help="library bodies, body files or folders of them (a corpus of "
+                        "`bodyscan poses sample`), comma-separated (default: all shipped)")
     parser.add_argument("--top", type=int, default=3, help="confused pairs shown per body (default 3)")
     parser.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
                         help="a reconstruction parameter (repeatable)")
@@ -161,9 +162,9 @@ def main(argv=None) -> int:
                         help="turn every body this many degrees about the vertical before the scan")
     parser.add_argument("--json", help="also write the rows to this JSON file")
     a = parser.parse_args(argv)
-    from bodyscan.poses.library import list_bodies
+    from bodyscan.poses.library import expand_bodies
 
-    bodies = a.bodies.split(",") if a.bodies else list_bodies()
+    bodies = expand_bodies(b for b in (a.bodies or "").split(",") if b)
     overrides = dict(kv.split("=", 1) for kv in a.param)
     from bodyscan.recon import ReconError
 
@@ -194,6 +195,12 @@ def main(argv=None) -> int:
               + f" | spur {mean['spur_proposed']:.3f}/{mean['spur_simple']:.3f} (p<s {nsp}/{len(rows)})"
               f" | bridge {mean['bridge_proposed'] * 100:.2f}% (max "
               f"{max(r['bridge_proposed'] for r in rows) * 100:.2f}%, <0.5%: {nbr}/{len(rows)})")
+        from .fit_table import wilson
+
+        n = len(rows)
+        (alo, ahi), (blo, bhi) = wilson(n95, n), wilson(nbr, n)
+        print(f"{'rates':>17s} acc >= 0.95 {n95}/{n} = {n95 / n:.3f} (95% CI {alo:.3f}-{ahi:.3f}); "
+              f"bridging < 0.5% {nbr}/{n} = {nbr / n:.3f} (95% CI {blo:.3f}-{bhi:.3f})")
     if a.json:
         from bodyscan._io import write_json
 

@@ -41,6 +41,21 @@ def register(sub) -> None:
                      help="regenerate every body of poses/shipped.yaml instead of one")
     gen.set_defaults(func=_generate)
 
+    smp = psub.add_parser(
+        "sample", help="draw a random body corpus with the anny body model (needs the 'bodies' extra)",
+        description="Draw bodies INDEX = START .. START+N-1 of seed SEED into DIR, each a function of "
+                    "(SEED, INDEX) only: a random anny shape over its whole phenotype range, a posture "
+                    "drawn per joint from a family of scanner poses within human range of motion, "
+                    "bodies that interpenetrate drawn again, scanner conditions stored with each body. "
+                    "Seeds 0-999 are the tune corpus, 1000-1999 the validate corpus. Bodies already "
+                    "in DIR are kept. A body takes a few seconds.")
+    smp.add_argument("--n", type=int, required=True, help="number of bodies")
+    smp.add_argument("--seed", type=int, required=True,
+                     help="corpus seed (tune: 0-999, validate: 1000-1999)")
+    smp.add_argument("--start", type=int, default=0, help="first index (default: 0)")
+    smp.add_argument("--out", required=True, metavar="DIR", help="folder of body .npz files to write")
+    smp.set_defaults(func=_sample)
+
     chk = psub.add_parser(
         "check", help="measure gaps between close body parts and look for interpenetration",
         description="For each BODY: the smallest gaps (cm) arm-torso (without the armpit fold), "
@@ -107,6 +122,18 @@ def _generate(args) -> int:
     posture, shape = load_posture(args.pose), load_shape(args.shape)  # user errors before the slow part
     body = generate(posture, shape, params, name=out.stem)
     print(save_body(body, out))
+    return 0
+
+
+def _sample(args) -> int:
+    from .body import BodyError
+    from .generate import _import_anny
+    from .sample import sample
+
+    if args.seed < 0 or args.start < 0:
+        raise BodyError(f"--seed and --start must be non-negative, got {args.seed}, {args.start}")
+    _import_anny()  # says how to install the 'bodies' extra before anything is drawn
+    sample(args.n, args.seed, args.out, start=args.start)
     return 0
 
 

@@ -17,3 +17,31 @@ def find_body(name: str) -> Path | None:
     """Path of the shipped body called ``name``, or None."""
     path = DATA_DIR / f"{name}.npz"
     return path if path.is_file() else None
+
+
+def expand_bodies(specs) -> list[str]:
+    """Body specs with every folder replaced by its body files (``*.npz``, sorted).
+
+    Parameters
+    ----------
+    specs : iterable of str
+        Library names, body files, or folders of body files (a corpus from `poses sample`);
+        empty: every shipped body.
+
+    Returns
+    -------
+    bodies : list of str
+        Library names and file paths, for `load_body`.
+    """
+    out = []
+    for spec in specs:
+        path = Path(spec)
+        if path.is_dir():
+            files = sorted(str(p) for p in path.glob("*.npz"))
+            if not files:
+                from .body import BodyError
+                raise BodyError(f"{path}: a folder without body files (*.npz)")
+            out += files
+        else:
+            out.append(str(spec))
+    return out or list_bodies()

@@ -818,6 +818,29 @@ class FitParams:
         return cls(**kw)
 
 
+#: The paper's method as itself (`ReconParams.paper`, the ``paper`` method): every rule of ours
+#: that a parameter switches off, off. Clustering: no joint planes (the joint rule weighs the
+#: neighbours' erosion fronts alone, paper 3.2), no claims across joints, no adoption of
+#: unlabelled points (the paper leaves them out), the three-or-more rule copies from the nearest
+#: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
+#: points) only: no deeper inner triangles, no open joint ends, no fold, carving, view or
+#: concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
+#: size estimate, no alternatives. Kept, being steps without which nothing works, and the same
+#: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
+#: itself (``recon.match``, whose voxel score is paper 2.3).
+PAPER = {
+    # clustering (paper 3.1-3.2)
+    "joint_plane_weight": 0.0, "side_joint_planes": False, "joint_plane_bones": False,
+    "hip_planes": False, "claim_across_joints": 0.0, "three_keep_nearest": 0.0,
+    "adopt_unlabeled": False, "refine_adjacent": False,
+    # surface (paper 3.3)
+    "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
+    "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
+    # posture (paper 2)
+    "fit_facing": 0, "fit_facing_reverse": 0, "match_size_both": 0, "match_alternatives": 0,
+}
+
+
 @dataclass(frozen=True)
 class ReconParams:
     """All parameters of the reconstruction: ``fit`` (posture estimation), ``cluster``, ``surface``."""
@@ -825,6 +848,14 @@ class ReconParams:
     fit: FitParams = field(default_factory=FitParams)
     cluster: ClusterParams = field(default_factory=ClusterParams)
     surface: SurfaceParams = field(default_factory=SurfaceParams)
+
+    def paper(self) -> "ReconParams":
+        """These parameters with every rule of ours switched off (`PAPER`): the paper's steps."""
+        changes: dict = {}
+        for stage, obj in self.stages().items():
+            names = {f.name for f in fields(obj)}
+            changes[stage] = dataclasses.replace(obj, **{k: v for k, v in PAPER.items() if k in names})
+        return dataclasses.replace(self, **changes)
 
     def stages(self) -> dict:
         """{stage name: that stage's dataclass} for the stages present."""

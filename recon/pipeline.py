@@ -13,7 +13,7 @@ from . import ReconError
 from .model import SECTIONS, BodyFit
 from .params import ReconParams
 
-METHODS = ("proposed", "simple")
+METHODS = ("proposed", "paper", "simple")
 
 #: Fewer points than this cannot make a body surface.
 MIN_POINTS = 100
@@ -169,9 +169,10 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     ----------
     points : (n, 3) float, metres
         The cloud (+z up).
-    method : {"proposed", "simple"}
+    method : {"proposed", "paper", "simple"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
-        ``simple``: the paper's baseline, T_d threshold only.
+        ``paper``: the same steps with every rule of ours off (`recon.params.PAPER`), the paper's
+        method as itself; ``simple``: the paper's baseline, T_d threshold only.
     params : ReconParams, optional
         Default: `ReconParams` defaults (the paper's values).
     view_dir : (n, 3) or (3,) float, optional
@@ -197,6 +198,9 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     params = params if params is not None else ReconParams()
     if not isinstance(params, ReconParams):
         raise ReconError(f"params must be a ReconParams, got {type(params).__name__}")
+    steps = method
+    if method == "paper":  # the proposed steps with the paper's parameters
+        params, steps = params.paper(), "proposed"
     p = check_points(points)
     vd = _check_view_dir(view_dir, len(p))
     times = {}
@@ -220,7 +224,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     from .surface import median_spacing
 
     tree = cKDTree(p)
-    member = cluster_points(p, fit, method, params.cluster, coords=coords, tree=tree)
+    member = cluster_points(p, fit, steps, params.cluster, coords=coords, tree=tree)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     meshed = member
@@ -232,7 +236,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
-                                                            drop_inner=method == "proposed",
+                                                            drop_inner=steps == "proposed",
                                                             spacing=median_spacing(p, tree=tree))
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
