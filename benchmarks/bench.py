@@ -259,6 +259,7 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
         extra = dict(point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
                      joints=rec.fit.joints)
         face_section = np.asarray(rec.face_section)
+        row["points_unmeshed"] = int(rec.points_unmeshed)
         row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
                     for k, v in rp.to_dict().items()})
     else:

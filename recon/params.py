@@ -422,6 +422,22 @@ class SurfaceParams:
     concave_mean_height: float = 0.7  # chosen, spacings
     concave_min_edge: float = 2.5   # chosen, spacings (speed on dense scans, see above)
     concave_neighbours: int = 8     # chosen, points
+    far_charts: bool = field(default=True, metadata={
+        "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
+                "charts of their own joined to their section (recon.complete; False: the paper)",
+        "unit": "", "range": (False, True)})
+    far_link: float = field(default=2.5, metadata={
+        "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
+        "range": (0.5, None)})
+    far_join: float = field(default=3.0, metadata={
+        "help": "meshed points within this of a far part join its chart", "unit": "spacings",
+        "range": (0.0, None)})
+    far_max_edge: float = field(default=3.0, metadata={
+        "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
+        "unit": "spacings", "range": (0.0, None)})
+    far_min_points: int = field(default=10, metadata={
+        "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
+        "range": (3, None)})
 
     def __post_init__(self):
         _check(0 < self.seam_overlap < 3.14, "seam_overlap", self.seam_overlap, "in (0, pi) radians")

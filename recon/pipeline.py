@@ -42,6 +42,8 @@ class Reconstruction:
     method : str
     skipped : tuple of str
         Sections skipped for too few points.
+    points_unmeshed : int
+        Input points in no face of the open surface (left out: outliers, or points no chart took).
     """
 
     vertices: np.ndarray
@@ -53,6 +55,7 @@ class Reconstruction:
     params: ReconParams | None = None
     method: str = "proposed"
     skipped: tuple = ()
+    points_unmeshed: int = 0
 
     @property
     def point_section(self) -> np.ndarray:
@@ -212,17 +215,24 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     member = cluster_points(p, fit, method, params.cluster, coords=coords, tree=tree)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    meshed = member
+    meshed, extra = member, []
+    spacing = median_spacing(p, tree=tree)
     if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
         from .cluster import section_widths, simple_clustering
 
         far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
         meshed = member & ~far[:, None]
+        if params.surface.far_charts and method != "simple":  # ... or on charts of their own
+            from .complete import far_charts
+
+            sp = params.surface
+            extra, meshed = far_charts(p, far, member, meshed, spacing, sp.far_link, sp.far_join,
+                                       sp.far_min_points, sp.far_max_edge, tree)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
-                                                            drop_inner=method == "proposed",
-                                                            spacing=median_spacing(p, tree=tree))
+                                                            drop_inner=method != "simple",
+                                                            spacing=spacing, extra=extra)
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = time.perf_counter() - t0
@@ -230,5 +240,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     if len(faces) == 0:
         raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
                          "clustered points (is the fitted model placed on the cloud?)")
+    from .complete import unmeshed_count
+
     return Reconstruction(vertices=p, faces=faces, face_section=face_section, point_sections=member,
-                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped))
+                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped),
+                          points_unmeshed=unmeshed_count(len(p), faces))

@@ -1,0 +1,141 @@
+"""Completion beyond the paper: every seen point in the surface, and the unseen surface closed.
+
+`far_charts`: the points that no fitted section explains (beyond T_d of every section: hands,
+feet, the points of a section listed unfitted) are grouped into connected parts, and each part
+of at least ``far_min_points`` points gets a chart of its own, an elliptic column along the part's
+principal axis (open at the end that joins the body, closed by a cap at the other), which also
+holds the meshed points within ``far_join`` spacings of the part, so that the part's surface
+joins its section's. The charts are triangulated and cleaned like any section's
+(`recon.surface.section_surface`, then the merge and the air rules); their faces carry the
+section the part's points were adopted into (a hand counts as its forearm, a foot as its lower
+leg). Smaller parts are outliers and stay out of the surface.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .model import SECTIONS, SectionShape
+
+
+def far_parts(points: np.ndarray, far: np.ndarray, link: float, min_points: int):
+    """Connected parts of the ``far`` points.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    far : (n,) bool
+        The points no fitted section explains.
+    link : float
+        Two far points nearer than this (metres) are in the same part.
+    min_points : int
+        Smaller parts are left out (outliers).
+
+    Returns
+    -------
+    list of (k,) int
+        Point indices of each part, largest first.
+    """
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    idx = np.flatnonzero(far)
+    if len(idx) < max(min_points, 1):
+        return []
+    pairs = cKDTree(points[idx]).query_pairs(link, output_type="ndarray")
+    g = coo_matrix((np.ones(len(pairs)), (pairs[:, 0], pairs[:, 1])), shape=(len(idx), len(idx)))
+    _, lab = connected_components(g, directed=False)
+    count = np.bincount(lab)
+    order = np.argsort(-count, kind="stable")
+    return [idx[lab == c] for c in order if count[c] >= min_points]
+
+
+def part_shape(part: np.ndarray, joined: np.ndarray, name: str) -> SectionShape:
+    """The chart of one far part: an elliptic column along the part's principal axis.
+
+    Parameters
+    ----------
+    part : (k, 3) float
+        The part's points, metres.
+    joined : (j, 3) float
+        The meshed points it joins (may be empty); the column is open at the end nearer to them
+        (they lie on its extension) and closed by a cap at the other.
+    name : str
+        Section name given to the shape.
+    """
+    c = part.mean(axis=0)
+    q = part - c
+    _, vec = np.linalg.eigh(q.T @ q)
+    axis, fx = vec[:, 2], vec[:, 1]
+    t = q @ axis
+    lo, hi = float(t.min()), float(t.max())
+    if len(joined) and float(((joined - c) @ axis).mean()) > 0.5 * (lo + hi):
+        axis, t, lo, hi = -axis, -t, -hi, -lo      # the joined end is the start
+    spread = np.sqrt(np.maximum(np.mean((q @ np.column_stack([fx, np.cross(axis, fx)])) ** 2, axis=0), 0))
+    radii = np.maximum(1.5 * spread, 0.005)
+    length = max(hi - lo, 0.01)
+    cap = min(float(radii.mean()), 0.5 * length)
+    return SectionShape(name=name, start=c + lo * axis, end=c + (lo + length) * axis, radii=radii,
+                        frame_x=fx, closed=(not len(joined), True), caps=(cap, cap))
+
+
+def far_charts(points: np.ndarray, far: np.ndarray, member: np.ndarray, meshed: np.ndarray,
+               spacing: float, link: float = 2.5, join: float = 3.0, min_points: int = 10,
+               max_edge: float = 3.0, tree=None):
+    """Charts for the points no fitted section explains (see the module docstring).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    far : (n,) bool
+        Points beyond T_d of every fitted section.
+    member : (n, 11) bool
+        Final section memberships (a far point's section: adopted from its neighbours).
+    meshed : (n, 11) bool
+        Memberships of the points meshed on the sections' own charts.
+    spacing : float
+        Median point spacing, metres.
+    link, join : float
+        Spacings: far points nearer than ``link`` form one part; meshed points within ``join``
+        of a part join its chart.
+    min_points : int
+        Parts with fewer points are outliers and stay out.
+    max_edge : float
+        Spacings: longer triangles are left out of these charts (a hand's or a foot's points are
+        few across its features: long triangles there span fingers and toes).
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``, if already built.
+
+    Returns
+    -------
+    jobs : list of (int, (k,) int, SectionShape, dict)
+        Section index, point indices, chart and surface parameter changes of each part (for
+        `recon.surface.reconstruct_surfaces`'s ``extra``).
+    single : (n, 11) bool
+        ``meshed`` with each part's points (and only them) in the part's one section: a far point
+        adopted from a seam point carries two labels, which would make its triangles "inner".
+    """
+    from scipy.spatial import cKDTree
+
+    single = meshed.copy()
+    jobs = []
+    tree = cKDTree(points) if tree is None else tree
+    on = meshed.any(axis=1)
+    for idx in far_parts(points, far & member.any(axis=1), link * spacing, min_points):
+        j = int(np.argmax(member[idx].sum(axis=0)))
+        near = tree.query_ball_point(points[idx], join * spacing)
+        near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+        near = near[on[near]]
+        single[idx] = False
+        single[idx, j] = True
+        shape = part_shape(points[idx], points[near], SECTIONS[j])
+        jobs.append((j, np.union1d(idx, near), shape, {"max_edge_factor": max_edge}))
+    return jobs, single
+
+
+def unmeshed_count(n: int, faces: np.ndarray) -> int:
+    """Points of ``n`` in no face of ``faces`` (k, 3)."""
+    used = np.zeros(n, dtype=bool)
+    used[np.asarray(faces, dtype=np.int64).ravel()] = True
+    return int(n - used.sum())
