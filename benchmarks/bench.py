@@ -45,7 +45,7 @@ from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
-RECON_METHODS = ("proposed", "simple")
+RECON_METHODS = ("proposed", "simple", "proposed-closed")
 #: Every method the benchmark knows, in table order.
 METHODS = RECON_METHODS + tuple(PEERS)
 
@@ -256,7 +256,7 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
             times["fit"] = float(fit_seconds)
             times["total"] = times.get("total", 0.0) + float(fit_seconds)
         vertices, faces = rec.vertices, rec.faces
-        extra = dict(point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
+        extra = dict(point_index=rec.point_index, point_sections=rec.point_sections,
                      joints=rec.fit.joints)
         face_section = np.asarray(rec.face_section)
         row["points_unmeshed"] = int(rec.points_unmeshed)

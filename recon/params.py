@@ -435,6 +435,15 @@ class SurfaceParams:
     far_max_edge: float = field(default=3.0, metadata={
         "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
+    close_voxel: float = field(default=0.008, metadata={
+        "help": "proposed-closed: grid step of the closed surface (recon.complete.closed_surface)",
+        "unit": "m", "range": (0.001, 0.05)})
+    close_cell: float = field(default=1.5, metadata={
+        "help": "proposed-closed: cell size of the sections' radial height fields",
+        "unit": "spacings", "range": (0.5, None)})
+    close_envelope: float = field(default=0.3, metadata={
+        "help": "proposed-closed: holes are filled at most this beyond the model radius",
+        "unit": "widths", "range": (0.0, None)})
     far_min_points: int = field(default=10, metadata={
         "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
         "range": (3, None)})

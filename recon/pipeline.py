@@ -13,7 +13,7 @@ from . import ReconError
 from .model import SECTIONS, BodyFit
 from .params import ReconParams
 
-METHODS = ("proposed", "simple")
+METHODS = ("proposed", "simple", "proposed-closed")
 
 #: Fewer points than this cannot make a body surface.
 MIN_POINTS = 100
@@ -56,6 +56,13 @@ class Reconstruction:
     method: str = "proposed"
     skipped: tuple = ()
     points_unmeshed: int = 0
+
+    @property
+    def point_index(self) -> np.ndarray:
+        """(V,) int: input point of each mesh vertex, -1 for a vertex made by the method (the
+        closed surface's)."""
+        i = np.arange(len(self.vertices))
+        return np.where(i < len(self.point_sections), i, -1)
 
     @property
     def point_section(self) -> np.ndarray:
@@ -236,12 +243,25 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = time.perf_counter() - t0
-    times["total"] = time.perf_counter() - t_start
     if len(faces) == 0:
         raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
                          "clustered points (is the fitted model placed on the cloud?)")
     from .complete import unmeshed_count
 
-    return Reconstruction(vertices=p, faces=faces, face_section=face_section, point_sections=member,
+    unmeshed = unmeshed_count(len(p), faces)
+    vertices = p
+    if method == "proposed-closed":  # beyond the paper: the unseen surface closed
+        from .complete import closed_surface
+
+        t0 = time.perf_counter()
+        sp = params.surface
+        solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
+                  if name in fit.sections and name not in skipped] + list(extra)
+        cv, cf, face_section = closed_surface(p, solids, spacing, sp.close_voxel, sp.close_cell,
+                                              sp.close_envelope)
+        vertices, faces = np.concatenate([p, cv]), cf + len(p)
+        times["complete"] = time.perf_counter() - t0
+    times["total"] = time.perf_counter() - t_start
+    return Reconstruction(vertices=vertices, faces=faces, face_section=face_section, point_sections=member,
                           fit=fit, times=times, params=params, method=method, skipped=tuple(skipped),
-                          points_unmeshed=unmeshed_count(len(p), faces))
+                          points_unmeshed=unmeshed)
