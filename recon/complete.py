@@ -80,7 +80,23 @@ def part_shape(part: np.ndarray, joined: np.ndarray, name: str) -> SectionShape:
                         frame_x=fx, closed=(not len(joined), True), caps=(cap, cap))
 
 
-def far_charts(points: np.ndarray, far: np.ndarray, member: np.ndarray, meshed: np.ndarray,
+def nearest_axis(part: np.ndarray, sections: dict) -> int:
+    """Index (into `SECTIONS`) of the fitted section whose axis segment comes nearest to the
+    points ``part`` (k, 3): the section a far part continues (a hand its forearm, past the wrist,
+    even when it hangs nearer to a thigh's surface than to the forearm's)."""
+    best, out = np.inf, 0
+    for j, name in enumerate(SECTIONS):
+        if name not in sections:
+            continue
+        sh = sections[name]
+        t = np.clip((part - sh.start) @ sh.axis, 0.0, sh.length)
+        d = float(np.linalg.norm(part - sh.start - t[:, None] * sh.axis, axis=1).min())
+        if d < best:
+            best, out = d, j
+    return out
+
+
+def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
                spacing: float, link: float = 2.5, join: float = 3.0, min_points: int = 10,
                max_edge: float = 3.0, tree=None):
     """Charts for the points no fitted section explains (see the module docstring).
@@ -90,15 +106,16 @@ def far_charts(points: np.ndarray, far: np.ndarray, member: np.ndarray, meshed: 
     points : (n, 3) float, metres
     far : (n,) bool
         Points beyond T_d of every fitted section.
-    member : (n, 11) bool
-        Final section memberships (a far point's section: adopted from its neighbours).
+    sections : dict of str to SectionShape
+        The fitted sections (`BodyFit.sections`): a part goes to the one whose axis comes
+        nearest (`nearest_axis`).
     meshed : (n, 11) bool
         Memberships of the points meshed on the sections' own charts.
     spacing : float
         Median point spacing, metres.
     link, join : float
         Spacings: far points nearer than ``link`` form one part; meshed points within ``join``
-        of a part join its chart.
+        of a part, in its section, join its chart.
     min_points : int
         Parts with fewer points are outliers and stay out.
     max_edge : float
@@ -122,12 +139,11 @@ def far_charts(points: np.ndarray, far: np.ndarray, member: np.ndarray, meshed: 
     single = meshed.copy()
     jobs = []
     tree = cKDTree(points) if tree is None else tree
-    on = meshed.any(axis=1)
-    for idx in far_parts(points, far & member.any(axis=1), link * spacing, min_points):
-        j = int(np.argmax(member[idx].sum(axis=0)))
+    for idx in far_parts(points, far, link * spacing, min_points):
+        j = nearest_axis(points[idx], sections)
         near = tree.query_ball_point(points[idx], join * spacing)
         near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
-        near = near[on[near]]
+        near = near[meshed[near, j]]
         single[idx] = False
         single[idx, j] = True
         shape = part_shape(points[idx], points[near], SECTIONS[j])
@@ -325,11 +341,11 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
     return R, h0
 
 
-def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray) -> np.ndarray:
+def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None) -> np.ndarray:
     """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
     ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
     (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
-    past its last cells."""
+    past its last cells (and not past ``h1``, the last point's h, when given)."""
     from scipy.ndimage import distance_transform_edt
 
     n_t, n_h = R.shape
@@ -347,15 +363,17 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray) -> np.
     t0 = np.floor(tf).astype(np.int64)
     a = tf - t0
     hc = np.clip(hf, 0, n_h - 1)
-    h1 = np.minimum(np.floor(hc).astype(np.int64), max(n_h - 2, 0))
-    b = np.clip(hc - h1, 0, 1)
-    h2 = np.minimum(h1 + 1, n_h - 1)
+    r0 = np.minimum(np.floor(hc).astype(np.int64), max(n_h - 2, 0))
+    b = np.clip(hc - r0, 0, 1)
+    r1 = np.minimum(r0 + 1, n_h - 1)
     ta, tb = t0 % n_t, (t0 + 1) % n_t
 
     def bil(G):
-        return ((1 - a) * ((1 - b) * G[ta, h1] + b * G[ta, h2]) + a * ((1 - b) * G[tb, h1] + b * G[tb, h2]))
+        return ((1 - a) * ((1 - b) * G[ta, r0] + b * G[ta, r1]) + a * ((1 - b) * G[tb, r0] + b * G[tb, r1]))
 
     s = bil(S) - np.maximum(-hf, 0) * cell - np.maximum(hf - (n_h - 1), 0) * cell
+    if h1 is not None:   # not past the last point's h
+        s = np.minimum(s, h1 - local[:, 2])
     return np.minimum(bil(Rn) - rho, s)
 
 
@@ -401,11 +419,12 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         local = shape.local(points[idx])
         # a far part's chart is its points' own ellipse: its fill stays within it
         R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if len(job) > 3 else envelope * shape.width)
+        h1 = float(local[:, 2].max())
         reach = float(np.nanmax(R)) + cell
         corners = np.array([[x, y, z] for x in (-reach, reach) for y in (-reach, reach)
                             for z in (h0 - cell, h0 + (R.shape[1] + 1) * cell)])
         world = corners @ shape.frame + shape.start
-        parts.append((j, shape, R, h0, world.min(axis=0), world.max(axis=0)))
+        parts.append((j, shape, R, h0, h1, world.min(axis=0), world.max(axis=0)))
         lo, hi = np.minimum(lo, world.min(axis=0)), np.maximum(hi, world.max(axis=0))
     if not parts:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
@@ -414,13 +433,13 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     shape_ = tuple(np.ceil((hi - lo) / voxel).astype(int) + 1)
     F = np.full(shape_, -voxel)
     lab = np.zeros(shape_, dtype=np.int8)
-    for j, shape, R, h0, a, b in parts:
+    for j, shape, R, h0, h1, a, b in parts:
         i0 = np.clip(np.floor((a - lo) / voxel).astype(int), 1, None)
         i1 = np.minimum(np.ceil((b - lo) / voxel).astype(int) + 1, np.array(shape_) - 1)
         if (i1 <= i0).any():
             continue
         g = np.indices(tuple(i1 - i0)).reshape(3, -1).T + i0
-        val = field_value(R, h0, cell, shape.local(lo + voxel * g))
+        val = field_value(R, h0, cell, shape.local(lo + voxel * g), h1)
         cur = F[g[:, 0], g[:, 1], g[:, 2]]
         better = val > cur
         gb = g[better]

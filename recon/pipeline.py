@@ -233,7 +233,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
             from .complete import far_charts
 
             sp = params.surface
-            extra, meshed = far_charts(p, far, member, meshed, spacing, sp.far_link, sp.far_join,
+            extra, meshed = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link, sp.far_join,
                                        sp.far_min_points, sp.far_max_edge, tree)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
