@@ -105,7 +105,8 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     ----------
     points : (n, 3) float, metres
     far : (n,) bool
-        Points beyond T_d of every fitted section.
+        Points beyond T_d of every fitted section that the clustering labelled through their
+        neighbours (`recon.cluster.adopt_unlabeled`: connected to the body).
     sections : dict of str to SectionShape
         The fitted sections (`BodyFit.sections`): a part goes to the one whose axis comes
         nearest (`nearest_axis`).

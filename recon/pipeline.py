@@ -168,9 +168,11 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     ----------
     points : (n, 3) float, metres
         The cloud (+z up).
-    method : {"proposed", "simple"}
+    method : {"proposed", "simple", "proposed-closed"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
-        ``simple``: the paper's baseline, T_d threshold only.
+        ``simple``: the paper's baseline, T_d threshold only; ``proposed-closed`` (beyond the
+        paper): ``proposed`` with the unseen surface closed (`recon.complete.closed_surface`):
+        watertight, its vertices new (after the input points, which it leaves in no face).
     params : ReconParams, optional
         Default: `ReconParams` defaults (the paper's values).
     view_dir : (n, 3) or (3,) float, optional
@@ -233,7 +235,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
             from .complete import far_charts
 
             sp = params.surface
-            extra, meshed = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link, sp.far_join,
+            extra, meshed = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link, sp.far_join,
                                        sp.far_min_points, sp.far_max_edge, tree)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

@@ -30,9 +30,10 @@ def register(sub) -> None:
                     "a 'section' property. Units: metres.")
     p.add_argument("cloud", metavar="CLOUD.ply", help="point cloud (PLY with x, y, z; a viewing "
                    "direction per point is used for orientation when present)")
-    p.add_argument("--method", choices=("proposed", "simple"), default="proposed",
+    p.add_argument("--method", choices=("proposed", "simple", "proposed-closed"), default="proposed",
                    help="'proposed': the paper's refined clustering; 'simple': T_d threshold only, "
-                        "the paper's baseline (default: proposed)")
+                        "the paper's baseline; 'proposed-closed': proposed with the unseen surface "
+                        "closed, watertight (beyond the paper) (default: proposed)")
     p.add_argument("--out", required=True, metavar="MESH.ply", help="output mesh (binary PLY)")
     p.add_argument("--preview", metavar="PNG", help="also draw the mesh coloured by section: front, "
                    "side, back, and close-ups of the armpits and crotch")
