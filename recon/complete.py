@@ -127,17 +127,14 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
 
     Returns
     -------
-    jobs : list of (int, (k,) int, SectionShape, dict, (k',) int)
+    list of (int, (k,) int, SectionShape, dict, (k',) int)
         Section index, point indices, chart and surface parameter changes of each part (for
         `recon.surface.reconstruct_surfaces`'s ``extra``), and the part's own points (without
-        the joined ones: its solid in `closed_surface`).
-    single : (n, 11) bool
-        ``meshed`` with each part's points (and only them) in the part's one section: a far point
-        adopted from a seam point carries two labels, which would make its triangles "inner".
+        the joined ones: its solid in `closed_surface`). The parts' points are in no section
+        of ``meshed``: not in their section's own chart, and never "inner" in the merge.
     """
     from scipy.spatial import cKDTree
 
-    single = meshed.copy()
     jobs = []
     tree = cKDTree(points) if tree is None else tree
     for idx in far_parts(points, far, link * spacing, min_points):
@@ -145,11 +142,9 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         near = tree.query_ball_point(points[idx], join * spacing)
         near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
         near = near[meshed[near, j]]
-        single[idx] = False
-        single[idx, j] = True
         shape = part_shape(points[idx], points[near], SECTIONS[j])
         jobs.append((j, np.union1d(idx, near), shape, {"max_edge_factor": max_edge}, idx))
-    return jobs, single
+    return jobs
 
 
 def unmeshed_count(n: int, faces: np.ndarray) -> int:

@@ -235,8 +235,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
             from .complete import far_charts
 
             sp = params.surface
-            extra, meshed = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link, sp.far_join,
-                                       sp.far_min_points, sp.far_max_edge, tree)
+            extra = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link,
+                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
