@@ -247,7 +247,8 @@ def marching_tetrahedra(values: np.ndarray, origin: np.ndarray, step: float, lab
 GAP_TURN = 0.5
 
 
-def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: float = np.inf):
+def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: float = np.inf,
+                 thin=(-np.inf, np.inf)):
     """A section's surface as a radial height field ``rho = R(theta, h)`` on a grid, its holes filled.
 
     The points' distances from the axis are averaged per (theta, h) cell. Cells the points leave
@@ -268,6 +269,10 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         mean distance from the axis.
     envelope : float
         Largest fill beyond the model radius, metres.
+    thin : (2,) float
+        Rows outside this range of h (metres) fill no cell beyond the smallest seen radius of the
+        row: parts of unknown shape (a far part: a hand, a foot) have their unseen side taken as
+        thin as their thinnest seen side.
 
     Returns
     -------
@@ -333,6 +338,11 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
                        shape=(len(unk), len(unk))).tocsr()
         A = A + coo_matrix((deg + eps, (np.arange(len(unk)), np.arange(len(unk))))).tocsr()
         x = spsolve(A.tocsc(), rhs + eps * model[t_u])
+        hc = h0 + (h_u + 0.5) * cell
+        lean = (hc < thin[0]) | (hc > thin[1])
+        if lean.any():   # no more than the row's thinnest seen radius (a flat hand seen on its back)
+            low = np.min(np.where(seen, R, np.inf), axis=0)[h_u]
+            x = np.where(lean & np.isfinite(low), np.minimum(x, low), x)
         R[t_u, h_u] = np.minimum(x, model[t_u] + envelope)
     return R, h0
 
@@ -414,7 +424,9 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
             continue
         local = shape.local(points[idx])
         # a far part's chart is its points' own ellipse: its fill stays within it
-        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if len(job) > 3 else envelope * shape.width)
+        part = len(job) > 3
+        thin = (np.inf, -np.inf) if part else (-np.inf, np.inf)
+        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin)
         h1 = float(local[:, 2].max())
         reach = float(np.nanmax(R)) + cell
         corners = np.array([[x, y, z] for x in (-reach, reach) for y in (-reach, reach)
