@@ -422,6 +422,10 @@ class SurfaceParams:
     concave_mean_height: float = 0.7  # chosen, spacings
     concave_min_edge: float = 2.5   # chosen, spacings (speed on dense scans, see above)
     concave_neighbours: int = 8     # chosen, points
+    hull_edge_min: float = field(default=0.03, metadata={
+        "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
+                "dense scans keep their seen surface across small gaps (0 = spacings alone)",
+        "unit": "m", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own joined to their section (recon.complete; False: the paper)",

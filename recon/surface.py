@@ -273,7 +273,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     if m < 3:
         return np.zeros((0, 3), dtype=np.int64)
     spacing = max(median_spacing(points) if spacing is None else spacing, 1e-9)
-    hull_limit = params.hull_edge_factor * spacing
+    hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     R = float(shape.radii.mean())
     L = shape.length
     _, theta, h = shape.coords(points)
