@@ -7,8 +7,16 @@ principal axis (open at the end that joins the body, closed by a cap at the othe
 holds the meshed points within ``far_join`` spacings of the part, so that the part's surface
 joins its section's. The charts are triangulated and cleaned like any section's
 (`recon.surface.section_surface`, then the merge and the air rules); their faces carry the
-section the part's points were adopted into (a hand counts as its forearm, a foot as its lower
-leg). Smaller parts are outliers and stay out of the surface.
+section whose axis comes nearest (a hand counts as its forearm, a foot as its lower leg).
+Smaller parts are outliers and stay out of the surface.
+
+`closed_surface` (the method ``proposed-closed``): each section's and far part's points, in its
+chart's cylindrical coordinates, give a radial height field r(theta, h) whose holes (what the
+scanner did not see) are filled by a discrete Laplace equation within the model's envelope
+(`radial_field`); each field bounds a solid, the solids are united (a maximum of their signed
+values on a grid) and the union's surface is extracted by marching tetrahedra: one closed,
+consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
+holds another section's points, so no surface spans the air between two sections.
 """
 
 from __future__ import annotations
