@@ -49,7 +49,7 @@ from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
-RECON_METHODS = ("proposed", "paper", "simple")
+RECON_METHODS = ("proposed", "proposed-closed", "paper", "simple")
 #: Every method the benchmark knows, in table order.
 METHODS = RECON_METHODS + tuple(PEERS)
 
@@ -266,9 +266,10 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
             times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
             times["fit"] = float(fit_seconds)
         vertices, faces = rec.vertices, rec.faces
-        extra = dict(point_index=np.arange(len(rec.vertices)), point_sections=rec.point_sections,
+        extra = dict(point_index=rec.point_index, point_sections=rec.point_sections,
                      joints=rec.fit.joints)
         face_section = np.asarray(rec.face_section)
+        row["points_unmeshed"] = int(rec.points_unmeshed)
         row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
                     for k, v in rp.to_dict().items()})
     elif m.kind == "peer":

@@ -616,6 +616,8 @@ def accuracy_completeness(vertices, faces, truth: GroundTruth, params: MetricPar
     - ``recall_full@T``: fraction of true samples within T of the mesh;
     - ``recall_seen@T``: the same over true samples the scanner saw (``seen``, see
       `GroundTruth.seen`), i.e. what a method could have recovered from the points;
+    - ``recall_unseen@T``: the same over the true samples the scanner did not see (what a method
+      completed);
     - ``fscore_full@T``, ``fscore_seen@T``: harmonic means of precision and the recall;
     - ``chamfer_l1_mm``: ``(mean d(mesh -> true) + mean d(true -> mesh)) / 2``, in millimetres
       (the mean of the two directions' mean distances, not their sum, and not squared);
@@ -631,7 +633,8 @@ def accuracy_completeness(vertices, faces, truth: GroundTruth, params: MetricPar
         for t in taus:
             lab = tau_label(t)
             out.update({f"precision@{lab}": float("nan"), f"recall_full@{lab}": 0.0,
-                        f"recall_seen@{lab}": 0.0, f"fscore_full@{lab}": 0.0, f"fscore_seen@{lab}": 0.0})
+                        f"recall_seen@{lab}": 0.0, f"recall_unseen@{lab}": 0.0,
+                        f"fscore_full@{lab}": 0.0, f"fscore_seen@{lab}": 0.0})
         out.update(chamfer_l1_mm=float("nan"), normal_consistency=float("nan"))
         return out
     mine = SurfaceIndex(vertices, faces, backend=truth.index.backend)
@@ -643,8 +646,10 @@ def accuracy_completeness(vertices, faces, truth: GroundTruth, params: MetricPar
         p = float(np.mean(d_p < t))
         r_full = float(np.mean(d_r < t))
         r_seen = float(np.mean(d_r[seen] < t)) if seen.any() else float("nan")
+        r_unseen = float(np.mean(d_r[~seen] < t)) if (~seen).any() else float("nan")
         f = (lambda r: 2 * p * r / (p + r) if p + r > 0 else 0.0)
         out.update({f"precision@{lab}": p, f"recall_full@{lab}": r_full, f"recall_seen@{lab}": r_seen,
+                    f"recall_unseen@{lab}": r_unseen,
                     f"fscore_full@{lab}": f(r_full), f"fscore_seen@{lab}": f(r_seen)})
     out["chamfer_l1_mm"] = float(0.5 * (d_p.mean() + d_r.mean()) * 1000.0)
     nc_p = np.abs(np.einsum("ij,ij->i", mine.normals[pfid], truth.index.normals[f_p])).mean()
@@ -702,6 +707,20 @@ def joint_errors(joints: dict, true_joints: dict) -> dict:
             "joint_error_worst": names[int(err.argmax())]}
 
 
+def is_watertight(faces) -> bool:
+    """Whether the mesh ``faces`` (F, 3) is closed and consistently wound: every edge is used by
+    exactly two faces, once in each direction (an edge-manifold without boundary)."""
+    f = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+    if len(f) == 0:
+        return False
+    a = f.ravel()
+    b = f[:, [1, 2, 0]].ravel()
+    n = int(f.max()) + 1
+    directed = np.unique(a * n + b, return_counts=True)[1]
+    undirected = np.unique(np.minimum(a, b) * n + np.maximum(a, b), return_counts=True)[1]
+    return bool((directed == 1).all() and (undirected == 2).all())
+
+
 def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt_face=None,
                scan_gt_section=None, point_index=None, point_sections=None, joints=None,
                seen: np.ndarray | None = None, keep_masks: bool = False) -> dict:
@@ -743,7 +762,7 @@ def score_mesh(vertices, faces, truth: GroundTruth, *, scan_points=None, scan_gt
         raise BenchError("mesh vertices hold NaN or infinite values")
     _, area = face_normals(vertices, faces)
     row: dict = {"n_vertices": int(len(vertices)), "n_faces": int(len(faces)),
-                 "mesh_area_m2": float(area.sum())}
+                 "mesh_area_m2": float(area.sum()), "watertight": is_watertight(faces)}
     if len(faces):
         tf = corner_true_faces(vertices, faces, truth, scan_points=scan_points, scan_gt_face=scan_gt_face,
                                point_index=point_index)
@@ -780,7 +799,7 @@ def metric_names(params: MetricParams | None = None) -> list[str]:
     for t in params.taus_m:
         lab = tau_label(t)
         names += [f"precision@{lab}", f"recall_full@{lab}", f"recall_seen@{lab}",
-                  f"fscore_seen@{lab}", f"fscore_full@{lab}"]
+                  f"recall_unseen@{lab}", f"fscore_seen@{lab}", f"fscore_full@{lab}"]
     return names + ["chamfer_l1_mm", "normal_consistency", "section_accuracy",
                     "joint_error_median_m", "joint_error_max_m"]
 

@@ -475,6 +475,35 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
+    hull_edge_min: float = field(default=0.03, metadata={
+        "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
+                "dense scans keep their seen surface across small gaps (0 = spacings alone)",
+        "unit": "m", "range": (0.0, None)})
+    far_charts: bool = field(default=True, metadata={
+        "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
+                "charts of their own joined to their section (recon.complete; False: the paper)",
+        "unit": "", "range": (False, True)})
+    far_link: float = field(default=2.5, metadata={
+        "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
+        "range": (0.5, None)})
+    far_join: float = field(default=3.0, metadata={
+        "help": "meshed points within this of a far part join its chart", "unit": "spacings",
+        "range": (0.0, None)})
+    far_max_edge: float = field(default=3.0, metadata={
+        "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
+        "unit": "spacings", "range": (0.0, None)})
+    close_voxel: float = field(default=0.008, metadata={
+        "help": "proposed-closed: grid step of the closed surface (recon.complete.closed_surface)",
+        "unit": "m", "range": (0.001, 0.05)})
+    close_cell: float = field(default=1.5, metadata={
+        "help": "proposed-closed: cell size of the sections' radial height fields",
+        "unit": "spacings", "range": (0.5, None)})
+    close_envelope: float = field(default=0.3, metadata={
+        "help": "proposed-closed: holes are filled at most this beyond the model radius",
+        "unit": "widths", "range": (0.0, None)})
+    far_min_points: int = field(default=10, metadata={
+        "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
+        "range": (3, None)})
 
     def __post_init__(self):
         check_fields(self, ReconError)
@@ -836,6 +865,7 @@ PAPER = {
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
+    "far_charts": False, "hull_edge_min": 0.0,
     # posture (paper 2)
     "fit_facing": 0, "fit_facing_reverse": 0, "match_size_both": 0, "match_alternatives": 0,
 }

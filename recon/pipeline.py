@@ -13,7 +13,7 @@ from . import ReconError
 from .model import SECTIONS, BodyFit
 from .params import ReconParams
 
-METHODS = ("proposed", "paper", "simple")
+METHODS = ("proposed", "proposed-closed", "paper", "simple")
 
 #: Fewer points than this cannot make a body surface.
 MIN_POINTS = 100
@@ -42,6 +42,8 @@ class Reconstruction:
     method : str
     skipped : tuple of str
         Sections skipped for too few points.
+    points_unmeshed : int
+        Input points in no face of the open surface (left out: outliers, or points no chart took).
     """
 
     vertices: np.ndarray
@@ -53,6 +55,14 @@ class Reconstruction:
     params: ReconParams | None = None
     method: str = "proposed"
     skipped: tuple = ()
+    points_unmeshed: int = 0
+
+    @property
+    def point_index(self) -> np.ndarray:
+        """(V,) int: input point of each mesh vertex, -1 for a vertex made by the method (the
+        closed surface's)."""
+        i = np.arange(len(self.vertices))
+        return np.where(i < len(self.point_sections), i, -1)
 
     @property
     def point_section(self) -> np.ndarray:
@@ -169,10 +179,13 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     ----------
     points : (n, 3) float, metres
         The cloud (+z up).
-    method : {"proposed", "paper", "simple"}
+    method : {"proposed", "proposed-closed", "paper", "simple"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
-        ``paper``: the same steps with every rule of ours off (`recon.params.PAPER`), the paper's
-        method as itself; ``simple``: the paper's baseline, T_d threshold only.
+        ``proposed-closed`` (beyond the paper): ``proposed`` with the unseen surface closed
+        (`recon.complete.closed_surface`): watertight, its vertices new (after the input points,
+        which it leaves in no face); ``paper``: the same steps with every rule of ours off
+        (`recon.params.PAPER`), the paper's method as itself; ``simple``: the paper's baseline,
+        T_d threshold only.
     params : ReconParams, optional
         Default: `ReconParams` defaults (the paper's values).
     view_dir : (n, 3) or (3,) float, optional
@@ -198,9 +211,9 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     params = params if params is not None else ReconParams()
     if not isinstance(params, ReconParams):
         raise ReconError(f"params must be a ReconParams, got {type(params).__name__}")
-    steps = method
+    steps = "simple" if method == "simple" else "proposed"   # the clustering's and surface's steps
     if method == "paper":  # the proposed steps with the paper's parameters
-        params, steps = params.paper(), "proposed"
+        params = params.paper()
     p = check_points(points)
     vd = _check_view_dir(view_dir, len(p))
     times = {}
@@ -227,23 +240,46 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     member = cluster_points(p, fit, steps, params.cluster, coords=coords, tree=tree)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    meshed = member
+    meshed, extra = member, []
+    spacing = median_spacing(p, tree=tree)
     if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
         from .cluster import section_widths, simple_clustering
 
         far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
         meshed = member & ~far[:, None]
+        if params.surface.far_charts and steps != "simple":  # ... or on charts of their own
+            from .complete import far_charts
+
+            sp = params.surface
+            extra = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link,
+                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
                                                             drop_inner=steps == "proposed",
-                                                            spacing=median_spacing(p, tree=tree))
+                                                            spacing=spacing, extra=extra)
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = time.perf_counter() - t0
-    times["total"] = time.perf_counter() - t_start
     if len(faces) == 0:
         raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
                          "clustered points (is the fitted model placed on the cloud?)")
-    return Reconstruction(vertices=p, faces=faces, face_section=face_section, point_sections=member,
-                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped))
+    from .complete import unmeshed_count
+
+    unmeshed = unmeshed_count(len(p), faces)
+    vertices = p
+    if method == "proposed-closed":  # beyond the paper: the unseen surface closed
+        from .complete import closed_surface
+
+        t0 = time.perf_counter()
+        sp = params.surface
+        solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
+                  if name in fit.sections and name not in skipped] + list(extra)
+        cv, cf, face_section = closed_surface(p, solids, spacing, sp.close_voxel, sp.close_cell,
+                                              sp.close_envelope)
+        vertices, faces = np.concatenate([p, cv]), cf + len(p)
+        times["complete"] = time.perf_counter() - t0
+    times["total"] = time.perf_counter() - t_start
+    return Reconstruction(vertices=vertices, faces=faces, face_section=face_section, point_sections=member,
+                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped),
+                          points_unmeshed=unmeshed)

@@ -27,10 +27,12 @@ def register(sub) -> None:
                     "a 'section' property. Units: metres.")
     p.add_argument("cloud", metavar="CLOUD.ply", help="point cloud (PLY with x, y, z; a viewing "
                    "direction per point is used for orientation when present)")
-    p.add_argument("--method", choices=("proposed", "paper", "simple"), default="proposed",
-                   help="'proposed': the paper's refined clustering with our rules; 'paper': the "
-                        "paper's steps alone (every rule of ours off); 'simple': T_d threshold only, "
-                        "the paper's baseline (default: proposed)")
+    p.add_argument("--method", choices=("proposed", "proposed-closed", "paper", "simple"),
+                   default="proposed",
+                   help="'proposed': the paper's refined clustering with our rules; "
+                        "'proposed-closed': proposed with the unseen surface closed, watertight "
+                        "(beyond the paper); 'paper': the paper's steps alone (every rule of ours "
+                        "off); 'simple': T_d threshold only, the paper's baseline (default: proposed)")
     p.add_argument("--out", required=True, metavar="MESH.ply", help="output mesh (binary PLY)")
     p.add_argument("--preview", metavar="PNG", help="also draw the mesh coloured by section: front, "
                    "side, back, and close-ups of the armpits and crotch")

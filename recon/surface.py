@@ -273,7 +273,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     if m < 3:
         return np.zeros((0, 3), dtype=np.int64)
     spacing = max(median_spacing(points) if spacing is None else spacing, 1e-9)
-    hull_limit = params.hull_edge_factor * spacing
+    hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     R = float(shape.radii.mean())
     L = shape.length
     _, theta, h = shape.coords(points)
@@ -684,7 +684,7 @@ def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, 
 
 def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                          params: SurfaceParams = SurfaceParams(), view_dir: np.ndarray | None = None,
-                         drop_inner: bool = True, spacing: float | None = None):
+                         drop_inner: bool = True, spacing: float | None = None, extra=()):
     """Per-section surfaces, merged and oriented outward.
 
     Parameters
@@ -706,6 +706,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         False (the simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
+    extra : list of (int, (k,) int, SectionShape[, dict])
+        More charts: section index, point indices, chart and changes of ``params`` for it
+        (`recon.complete.far_charts`); their faces join the section's.
 
     Returns
     -------
@@ -745,13 +748,15 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
             for end in _child_end(shape.name, fit, present):
                 closed[end] = False
         jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
+    jobs += list(extra)
 
     # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles)
     sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0)
 
     def run(job):
-        j, idx, shape = job
-        return j, idx[section_surface(points[idx], shape, sp, spacing)]
+        j, idx, shape = job[:3]
+        own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
+        return j, idx[section_surface(points[idx], shape, own, spacing)]
 
     if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
@@ -760,7 +765,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
             done = list(pool.map(run, jobs))
     else:
         done = [run(job) for job in jobs]
-    per = dict(done)
+    per = {}
+    for j, f in done:
+        per[j] = np.concatenate([per[j], f]) if j in per else f
     faces, sec = merge_sections(points, per, member, drop_inner)
     if drop_inner and params.inner_depth > 0:
         keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)

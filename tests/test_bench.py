@@ -42,23 +42,27 @@ def two_postures(tmp_path_factory):
 @pytest.fixture(scope="module")
 def bench_run(two_postures, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench")
-    methods = ("proposed", "simple")
+    methods = ("proposed", "simple", "proposed-closed")
     config = BenchConfig(bodies=tuple(two_postures), ks=(1,), methods=methods, metric=METRICS)
     return run_bench(config, out, jobs=2, progress=None)
 
 
 def test_bench_table_has_every_metric_and_parameter(bench_run, two_postures):
     table = pd.read_parquet(bench_run.out / "results.parquet")
-    assert len(table) == 2 * 2                      # posture x scan x method
+    assert len(table) == 2 * 3                      # posture x scan x method
     assert (table["status"] == "ok").all(), table[["body", "method", "error"]]
     for name in METRIC_NAMES + ("fscore_full@5mm", "fscore_full@10mm", "peak_memory_mb",
                                 "time_total_s", "time_fit_s", "time_cluster_s", "time_surface_s",
-                                "bridging_pairs", "body", "method", "k", "preset", "seed"):
+                                "bridging_pairs", "body", "method", "k", "preset", "seed",
+                                "points_unmeshed", "watertight", "recall_unseen@5mm"):
         assert name in table.columns, name
     assert any(c.startswith("recon.") for c in table.columns)
     assert any(c.startswith("scanner.") for c in table.columns)
     assert any(c.startswith("metric.") for c in table.columns)
-    assert set(table["method"]) == {"proposed", "simple"}
+    assert set(table["method"]) == {"proposed", "simple", "proposed-closed"}
+    closed = table[table["method"] == "proposed-closed"]
+    assert closed["watertight"].all() and not table[table["method"] == "proposed"]["watertight"].any()
+    assert (closed["recall_full@5mm"].values > table[table["method"] == "proposed"]["recall_full@5mm"].values).all()
     assert table["k"].eq(1).all() and table["scanner.laser_angle_deg"].eq(15).all()
     # the same fit serves both methods of a scan, so the posture error is the same
     for _, g in table.groupby("body"):
@@ -188,7 +192,7 @@ def test_bench_rejects_bad_options():
     with pytest.raises(BenchError, match="k values"):
         BenchConfig(bodies=("standing",), ks=(0,), methods=("simple",)).resolved()
     assert main(["bench", "--bodies", "no_such_body", "--no-peers"]) == 2
-    assert set(METHODS) >= {"proposed", "simple", "poisson", "bpa", "spsr"}
+    assert set(METHODS) >= {"proposed", "simple", "proposed-closed", "poisson", "bpa", "spsr"}
 
 
 def test_reconstruct_command_runs_peers(standing_scan, tmp_path):

@@ -1,0 +1,152 @@
+"""Completion beyond the paper (recon.complete): hands and feet meshed, holes filled, a closed surface."""
+
+import warnings
+
+import numpy as np
+import pytest
+import trimesh
+
+from bodyscan.benchmarks.metrics import is_watertight
+from bodyscan.recon import ReconParams, reconstruct
+from bodyscan.recon.complete import marching_tetrahedra, radial_field
+from bodyscan.recon.model import SECTIONS, SectionShape
+from bodyscan.recon.surface import face_areas, model_outward
+from test_pipeline import capsule_body
+
+FOREARM, LOWER_LEG = SECTIONS.index("forearm_l"), SECTIONS.index("lower_leg_l")
+HAND, FOOT = 11, 12   # labels of the extremities' true points (scored as forearm / lower leg)
+
+
+def extremities(fit):
+    """A flat hand below the left forearm and a foot turned out from the left lower leg (not in the
+    fit: the paper's model has neither)."""
+    fa, ll = fit.sections["forearm_l"], fit.sections["lower_leg_l"]
+    hand = SectionShape("hand", fa.end + (0, 0, 0.01), fa.end - (0, 0, 0.13), (0.045, 0.015), (1.0, 0, 0))
+    ankle = ll.end
+    foot = SectionShape("foot", ankle + (-0.03, 0, -0.02), ankle + (0.16, -0.02, -0.03), (0.04, 0.03), (0, 1.0, 0))
+    return hand, foot
+
+
+@pytest.fixture(scope="module")
+def with_hand_and_foot():
+    """The capsule body with a hand and a foot, scanned front and rear on a 10 mm grid."""
+    P, L, N, vd, fit = capsule_body()
+    hand, foot = extremities(fit)
+    pts, lab, nrm = [P], [L], [N]
+    for k, sh in ((HAND, hand), (FOOT, foot)):
+        p = sh.surface_points(n_theta=int(2 * np.pi * sh.radii.max() / 0.003), n_h=int(sh.length / 0.003))
+        pts.append(p)
+        lab.append(np.full(len(p), k))
+        nrm.append(model_outward(sh, p))
+    P, L, N = np.concatenate(pts), np.concatenate(lab), np.concatenate(nrm)
+    shapes = list(fit.sections.values()) + [hand, foot]
+    own = {**{j: fit.sections[n] for j, n in enumerate(SECTIONS)}, HAND: hand, FOOT: foot}
+    inside = np.zeros(len(P), bool)
+    for j, sh in own.items():
+        inside |= (sh.coords(P)[0] < -1e-4) & (L != j)
+    P, L, N = P[~inside], L[~inside], N[~inside]
+    # front and rear z-buffer on a 10 mm grid (as capsule_body)
+    ix, iz = np.floor(P[:, 0] / 0.01).astype(int), np.floor(P[:, 2] / 0.01).astype(int)
+    key = (ix - ix.min()) * 100000 + (iz - iz.min())
+    keep, vd = np.zeros(len(P), bool), np.zeros_like(P)
+    for sign in (1, -1):
+        o = np.lexsort((sign * P[:, 1], key))
+        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
+        first = first[N[first, 1] * -sign > 0.05]
+        keep[first] = True
+        vd[first] = (0, -sign, 0)
+    P = P[keep] + np.random.default_rng(0).normal(0, 0.0005, (keep.sum(), 3))
+    return P, L[keep], vd[keep], fit, shapes
+
+
+def outside(shapes, x):
+    """(k,) distance (metres) of ``x`` outside the union of ``shapes`` (<= 0 inside)."""
+    return np.min([s.coords(x)[0] for s in shapes], axis=0)
+
+
+def test_hand_and_foot_are_meshed_and_joined_without_air(with_hand_and_foot):
+    P, L, vd, fit, shapes = with_hand_and_foot
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        paper = reconstruct(P, "proposed", ReconParams.from_overrides({"far_charts": False}), view_dir=vd, fit=fit)
+        rec = reconstruct(P, "proposed", view_dir=vd, fit=fit)
+    ext = np.isin(L, [HAND, FOOT])
+    used = np.zeros(len(P), bool)
+    used[rec.faces.ravel()] = True
+    used_paper = np.zeros(len(P), bool)
+    used_paper[paper.faces.ravel()] = True
+    assert used[ext].mean() > 0.95 > 0.7 > used_paper[ext].mean()
+    assert rec.points_unmeshed < paper.points_unmeshed
+    lab = L[rec.faces]
+    for part, section in ((HAND, FOREARM), (FOOT, LOWER_LEG)):
+        assert ((lab == part).any(axis=1) & (lab == section).any(axis=1)).any()   # joined
+        # scored as its section (the hand's points within T_d of the waist are the clustering's)
+        assert np.mean(rec.face_section[(lab == part).all(axis=1)] == section) > 0.5
+    area = face_areas(P, rec.faces)
+    air = outside(shapes, P[rec.faces].mean(axis=1)) > 0.005
+    assert area[air].sum() < 0.005 * area.sum()
+
+
+def test_a_known_hole_is_filled_within_2mm_of_the_surface():
+    """A bulging column r(theta, h) = 5 cm + 0.5 cm sin(h / 10 cm) + 0.3 cm cos(2 theta) seen on
+    a 3 mm grid, a 6 cm x 8 cm patch missing: the filled cells lie within 2 mm of it (the
+    harmonic fill is flatter than the surface: twice these bulges, 3.1 mm)."""
+    def radius(t, h):
+        return 0.05 + 0.005 * np.sin(h / 0.1) + 0.003 * np.cos(2 * t)
+
+    t, h = np.meshgrid(np.arange(0, 2 * np.pi, 0.003 / 0.05), np.arange(0, 0.4, 0.003), indexing="ij")
+    t, h = t.ravel(), h.ravel()
+    hole = (np.abs(t - np.pi) * 0.05 < 0.03) & (np.abs(h - 0.2) < 0.04)
+    t, h = t[~hole], h[~hole]
+    r = radius(t, h)
+    local = np.column_stack([r * np.cos(t), r * np.sin(t), h])
+    cell = 0.009
+    R, h0 = radial_field(local, cell)
+    n_t, n_h = R.shape
+    tc = (np.arange(n_t)[:, None] + 0.5) * 2 * np.pi / n_t
+    hc = h0 + (np.arange(n_h)[None, :] + 0.5) * cell
+    in_hole = (np.abs(tc - np.pi) * 0.05 < 0.025) & (np.abs(hc - 0.2) < 0.035)
+    assert in_hole.sum() >= 20 and np.isfinite(R[in_hole]).all()
+    assert np.abs(R - radius(tc, hc))[in_hole].max() < 0.002
+
+
+def test_marching_tetrahedra_closes_a_sphere():
+    g = np.indices((24, 24, 24)).astype(float) * 0.01
+    d = 0.08 - np.sqrt(((g - 0.115) ** 2).sum(axis=0))
+    v, f, _ = marching_tetrahedra(d, np.zeros(3), 0.01)
+    m = trimesh.Trimesh(v, f, process=False)
+    assert is_watertight(f) and m.is_watertight and m.is_winding_consistent
+    assert m.volume > 0 and abs(m.volume / (4 / 3 * np.pi * 0.08 ** 3) - 1) < 0.05
+    assert np.abs(np.linalg.norm(v - 0.115, axis=1) - 0.08).max() < 0.002
+
+
+def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
+    P, L, vd, fit, shapes = with_hand_and_foot
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "proposed-closed", view_dir=vd, fit=fit)
+    m = trimesh.Trimesh(rec.vertices, rec.faces, process=False)
+    assert m.is_watertight and m.is_winding_consistent and m.volume > 0
+    assert (rec.point_index[:len(P)] == np.arange(len(P))).all() and (rec.point_index[len(P):] == -1).all()
+    # it covers the bodies' surface: true surface points within 5 mm of it
+    from scipy.spatial import cKDTree
+
+    truth = np.concatenate([s.surface_points(48, 24) for s in shapes])
+    truth = truth[outside(shapes, truth) > -1e-4]
+    d, _ = cKDTree(m.vertices).query(truth)
+    assert np.mean(d < 0.005) > 0.8
+    # and little of it stands in the air (the strict bound: next test)
+    air = outside(shapes, m.triangles_center) > 0.005
+    assert m.area_faces[air].sum() < 0.06 * m.area
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15, open: 4.2 % of the closed surface's area stands more "
+                   "than 5 mm outside (max 4 cm): the hand's points clustered into the waist fatten its "
+                   "solid, the crown's last rows reach 1.6 cm past the head")
+def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
+    P, L, vd, fit, shapes = with_hand_and_foot
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "proposed-closed", view_dir=vd, fit=fit)
+    v = rec.vertices[rec.faces].mean(axis=1)
+    assert outside(shapes, v).max() < 0.005
