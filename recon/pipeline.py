@@ -189,11 +189,10 @@ def prepare(points: np.ndarray, params: ReconParams, view_dir=None, head=None) -
 
             keep = ~reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z, c.outlier_floor,
                                     c.outlier_isolation, tree=tree)[0]
-        if c.register_heads and head is not None and view_dir is not None:
+        if c.register_heads and head is not None:
             from .register import register_heads
 
-            vd = np.broadcast_to(view_dir, points.shape)
-            reg = register_heads(points[keep], head[keep], vd[keep], spacing)
+            reg = register_heads(points[keep], head[keep], spacing)
             points, view_dir = reg.apply(points, head, view_dir)
     return Prepared(points, view_dir, keep, reg)
 

@@ -1,19 +1,20 @@
-"""Registration between scanner heads: robust point-to-plane ICP on their overlap (beyond the paper).
+"""Registration between scanner heads: robust point-to-surface ICP on their overlap (beyond the paper).
 
 The paper leaves the misalignment between its cameras to future work. Each head's points are
 moved rigidly onto the surface the other heads measured, where they overlap: a point of one head
-is paired with the nearest point of the others when it lies within ``reach`` of it and the two
-surfaces face the same way there (normals by PCA, turned toward each point's camera: the palm
-seen from the front and the back of the hand seen from behind, 2 cm apart, face opposite ways
-and are not paired). The pairs' point-to-plane distances are minimised by Gauss-Newton with
-Tukey weights on the MAD scale of the residuals, the reach shrinking as the fit converges.
+is paired with the robust quadratic surface (`recon.denoise.local_fits`) of the other heads'
+points near it, where the two surfaces are alike in direction (PCA normals within
+``normal_cos``), and the point-to-surface distances are minimised by Gauss-Newton with Tukey
+weights on the MAD scale of the residuals, the pairing distance shrinking as the fit converges.
 
-Front and rear heads overlap only along the silhouettes, where the surface is seen edge on: there
-the normals lie across the view, so a shift along the view (and the rotations that cause one) is
-barely measured. Directions of the motion whose standard error exceeds ``max_error`` are left
-alone rather than guessed (truncated Gauss-Newton on the eigenvectors of the normal matrix);
-`Registration` reports which were estimated. The heads are moved symmetrically (their mean
-motion removed), so no head is taken as exact.
+Only where the heads really overlap (both measured the same surface, their points interleaved)
+is the offset measured. Heads stacked in a tower overlap over tens of centimetres and are
+registered to a few hundredths of a degree; the paper's front and rear heads meet only along
+the silhouettes, seen edge on, where neither measures the surface beyond its own side: a head
+with less than ``min_overlap`` of its points in an overlap is left as it is. Directions of the
+motion whose standard error exceeds ``max_error`` are not moved either (truncated Gauss-Newton on
+the eigenvectors of the normal matrix); `Registration` reports how many were estimated. The
+heads are moved symmetrically (their mean motion removed), so no head is taken as exact.
 """
 
 from __future__ import annotations
@@ -90,19 +91,18 @@ def _log_rotation(r: np.ndarray) -> np.ndarray:
     return v * angle / (2 * np.sin(angle))
 
 
-def _normals(query: np.ndarray, points: np.ndarray, view_dir: np.ndarray, tree, k: int) -> np.ndarray:
-    """(m, 3) unit normals at ``query`` by PCA of their ``k`` nearest ``points`` (``tree`` of
-    them), turned toward ``view_dir`` (m, 3)."""
+def _normals(query: np.ndarray, points: np.ndarray, tree, k: int) -> np.ndarray:
+    """(m, 3) unit normals (unsigned) at ``query`` by PCA of their ``k`` nearest ``points``
+    (``tree`` of them)."""
     _, nb = tree.query(query, k=k)
     q = points[nb] - points[nb].mean(axis=1, keepdims=True)
-    _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))
-    n = vec[:, :, 0]
-    return n * np.where(np.einsum("ij,ij->i", n, view_dir) < 0, -1.0, 1.0)[:, None]
+    return np.linalg.eigh(np.swapaxes(q, 1, 2) @ q)[1][:, :, 0]
 
 
-def register_heads(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, spacing: float,
-                   reach: float = 0.03, iterations: int = 30, rounds: int = 2, max_error: float = 5e-4,
-                   min_pairs: int = 200, neighbours: int = 16, normal_cos: float = 0.5) -> Registration:
+def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: float = 0.005,
+                   iterations: int = 20, rounds: int = 2, max_error: float = 5e-4, min_pairs: int = 200,
+                   min_overlap: float = 0.05, neighbours: int = 16, normal_cos: float = 0.7,
+                   max_pairs: int = 2000) -> Registration:
     """Estimate each head's rigid correction from its overlap with the other heads.
 
     Parameters
@@ -110,27 +110,29 @@ def register_heads(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, s
     points : (n, 3) float, metres
     head : (n,) int
         Head index of each point (0 .. h-1).
-    view_dir : (n, 3) float
-        Unit directions toward each point's camera.
     spacing : float
         Median point spacing, metres.
     reach : float
-        Largest distance of a pair at the start, metres (the misregistration to recover is at most
-        about this much anywhere on the body); it shrinks to 4 robust scales of the residuals, but
-        not below 2 spacings.
+        The overlap: points with a point of another head within this distance (at least 2
+        spacings), metres. Pairs may be twice as far apart at the start; the limit then shrinks
+        towards 4 robust scales of the residuals plus 2 spacings.
     iterations : int
-        Gauss-Newton steps per head and round.
+        Gauss-Newton steps per head and round, at most.
     rounds : int
         Every head is registered against the others, this many times over.
     max_error : float
         A motion direction is estimated only when its standard error is below this, metres (a
         rotation's at 1 m from the centre).
     min_pairs : int
-        A head with fewer overlap pairs is left as it is.
+        A head with fewer overlap pairs is left as it is;
+    min_overlap : float
+        also when less than this fraction of its points overlap another head.
     neighbours : int
-        Points of each normal's PCA.
+        Points of each surface fit and normal.
     normal_cos : float
-        Pairs whose normals make a cosine below this are not paired.
+        Pairs whose (unsigned) normals make a cosine below this are not paired.
+    max_pairs : int
+        Points of each head's overlap used, at most (a seeded sample).
 
     Returns
     -------
@@ -148,35 +150,31 @@ def register_heads(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, s
     if nh < 2:
         return Registration(rot[:nh], trans[:nh], center, pairs, observable)
     k = int(min(neighbours, len(points) - 1))
-    vd = np.asarray(np.broadcast_to(view_dir, points.shape), dtype=np.float64)
-    cur = points.copy()
+    reach = max(reach, 2 * spacing)
+    cur = np.array(points, dtype=np.float64)
     for _ in range(rounds):
         for h in range(nh):
-            src = np.flatnonzero(head == h)
-            dst = np.flatnonzero(head != h)
+            mine = head == h
+            src, dst = np.flatnonzero(mine), np.flatnonzero(~mine)
             if len(src) < min_pairs or len(dst) < min_pairs:
                 continue
             tree = cKDTree(cur[dst])
-            # the overlap: points of this head within reach of the others' surface
-            d, _ = tree.query(cur[src], distance_upper_bound=reach)
-            src = src[np.isfinite(d)]
-            if len(src) < min_pairs:
+            near = np.isfinite(tree.query(cur[src], distance_upper_bound=reach)[0])
+            if near.sum() < max(min_pairs, min_overlap * len(src)):
                 continue
-            r_h, t_h = np.eye(3), np.zeros(3)
+            src = src[near]
+            if len(src) > max_pairs:  # a seeded sample of the overlap (speed only)
+                src = np.sort(np.random.default_rng(h).choice(src, max_pairs, replace=False))
             p0 = cur[src]
-            own = cKDTree(cur[head == h])
-            n0 = _normals(p0, cur[head == h], vd[src], own, k)
-            limit = reach
+            n0 = _normals(p0, cur[mine], cKDTree(cur[mine]), k)
+            r_h, t_h = np.eye(3), np.zeros(3)
+            limit = 2 * reach
             for _ in range(iterations):
                 p = (p0 - center) @ r_h.T + center + t_h
                 d, nb = tree.query(p, k=k)
                 ok = d[:, 0] < limit
-                if ok.sum() < min_pairs:
-                    break
                 fit = local_fits(cur[dst], p[ok], nb[ok], iterations=1)
-                nt = fit.normal * np.where(np.einsum("ij,ij->i", fit.normal, vd[dst[nb[ok, 0]]]) < 0,
-                                           -1.0, 1.0)[:, None]
-                same = np.einsum("ij,ij->i", nt, n0[ok] @ r_h.T) > normal_cos
+                same = np.abs(np.einsum("ij,ij->i", fit.normal, n0[ok] @ r_h.T)) > normal_cos
                 ok[ok] = same
                 if ok.sum() < min_pairs:
                     break
@@ -189,24 +187,22 @@ def register_heads(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, s
                 g = J.T @ (w * res)
                 lam, vec = np.linalg.eigh(H)
                 # standard error of each eigen-direction (a rotation's in metres at 1 m)
-                se = scale * np.sqrt(w.sum() / max(len(w) - 6, 1)) / np.sqrt(np.maximum(lam, 1e-300))
+                se = scale / np.sqrt(np.maximum(lam, 1e-300))
                 keep = se < max_error
                 step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
                 dr = _rotvec(step[:3])
                 r_h = dr @ r_h
                 t_h = dr @ t_h + step[3:]
-                limit = max(4 * scale + 2 * spacing, 0.5 * limit)
+                limit = max(4 * scale + 2 * spacing, 0.7 * limit)
                 pairs[h], observable[h] = int(ok.sum()), int(keep.sum())
-                if np.linalg.norm(step[:3]) < 1e-7 and np.linalg.norm(step[3:]) < 1e-7:
+                if np.abs(step).max() < 1e-6:
                     break
-            sel = head == h
-            cur[sel] = (cur[sel] - center) @ r_h.T + center + t_h
+            cur[mine] = (cur[mine] - center) @ r_h.T + center + t_h
             rot[h] = r_h @ rot[h]
             trans[h] = r_h @ trans[h] + t_h
     # remove the heads' mean motion: the corrections are relative, no head is exact
-    w_mean = np.mean([_log_rotation(r) for r in rot[:nh]], axis=0)
+    back = _rotvec(-np.mean([_log_rotation(r) for r in rot[:nh]], axis=0))
     t_mean = trans[:nh].mean(axis=0)
-    back = _rotvec(-w_mean)
     for h in range(nh):
         rot[h] = back @ rot[h]
         trans[h] = back @ (trans[h] - t_mean)

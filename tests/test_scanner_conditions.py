@@ -3,6 +3,7 @@
 import numpy as np
 
 from bodyscan.recon.denoise import denoise, reject_outliers
+from bodyscan.recon.register import _log_rotation, _rotvec, register_heads
 
 R = 0.05        # cylinder radius, metres
 PITCH = 0.005   # scan pitch, metres
@@ -82,3 +83,47 @@ def test_planted_outliers_are_removed():
     assert (out & off).sum() >= 0.9 * off.sum()
     assert (out & ~planted).sum() <= 0.001 * len(p)
     assert scale < 0.002    # the outliers do not inflate the noise scale
+
+
+def two_head_surface(overlap=0.3, n=30000, seed=0):
+    """A smooth bumpy closed surface measured by two heads whose fields overlap in a band
+    (``|y| < overlap`` of the unit direction), like the upper and lower heads of a tower.
+
+    Returns points (n', 3), head (n',), centre (3,).
+    """
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    r = 0.3 * (1 + 0.1 * np.sin(5 * u[:, 0]) * np.cos(4 * u[:, 2]) + 0.05 * np.sin(7 * u[:, 1]))
+    p = u * r[:, None] * [1.0, 0.6, 2.5]
+    a, b = u[:, 1] < overlap, u[:, 1] > -overlap
+    points = np.concatenate([p[a], p[b]])
+    head = np.concatenate([np.zeros(a.sum(), int), np.ones(b.sum(), int)])
+    return points, head, (points.min(axis=0) + points.max(axis=0)) / 2
+
+
+def test_planted_misregistration_between_heads_is_recovered():
+    p, head, c = two_head_surface()
+    axis = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    rot, shift = _rotvec(np.radians(0.5) * axis), np.array([0.0015, -0.001, 0.0008])
+    q = p.copy()
+    q[head == 1] = (p[head == 1] - c) @ rot.T + c + shift      # 0.5 degrees and 2 mm
+    reg = register_heads(q, head, spacing=0.004)
+    angle, mm = reg.offset(0, 1)
+    assert abs(angle - 0.5) < 0.1 and abs(mm - 1000 * np.linalg.norm(shift)) < 0.5
+    fixed, _ = reg.apply(q, head)
+    # what is left between the heads: head 1's points against where head 0's frame puts them
+    r1 = reg.rotation[0].T @ reg.rotation[1] @ rot
+    assert np.degrees(np.linalg.norm(_log_rotation(r1))) < 0.1
+    back = (fixed[head == 1] - c - reg.translation[0]) @ reg.rotation[0] + c   # in head 0's frame
+    assert np.sqrt(np.mean(np.sum((back - p[head == 1]) ** 2, axis=1))) < 0.0005
+
+
+def test_heads_that_do_not_overlap_are_left_alone():
+    # front and rear heads of a cylinder meet only at the silhouettes, seen edge on
+    p, vd, head, true = scanned_cylinder(0.001)
+    q = p.copy()
+    q[head == 1] += [0.002, 0.0, 0.0]
+    reg = register_heads(q, head, spacing=PITCH)
+    assert reg.offset(0, 1) == (0.0, 0.0)
+    assert (reg.pairs == 0).all()
