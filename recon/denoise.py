@@ -57,7 +57,7 @@ def robust_scale(residual: np.ndarray, floor: float = 1e-6) -> float:
 
 def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, scale: float | None = None,
                iterations: int = 2, distance: np.ndarray | None = None, radius: float = np.inf,
-               min_points: int = MIN_FIT) -> LocalFit:
+               min_points: int = MIN_FIT, workers: int = 1) -> LocalFit:
     """Fit a robust quadratic height field to each query point's neighbours.
 
     Parameters
@@ -76,6 +76,8 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         Distances of the neighbours; with ``radius``, the neighbours farther than ``radius`` are
         left out, except the ``min_points`` nearest (a quadratic over a wide patch would take a
         limb's curvature for noise).
+    workers : int
+        Threads fitting chunks of the queries at the same time (speed only; numpy releases the GIL).
 
     Returns
     -------
@@ -94,7 +96,7 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         sample = np.random.default_rng(0).choice(m, min(m, 5000), replace=False)
         A, z, beta, *_ = _frame(points[neighbours[sample]], query[sample], base[sample])
         scale = robust_scale((z - _predict(beta, A))[base[sample] > 0])
-    for a in range(0, m, CHUNK):
+    def chunk(a):
         w0 = base[a:a + CHUNK]
         A, z, beta, aq, zq, normal[a:a + CHUNK] = _frame(points[neighbours[a:a + CHUNK]],
                                                          query[a:a + CHUNK], w0)
@@ -103,7 +105,20 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
             w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0) * w0
             beta = _solve(A, z, w)
         resid[a:a + CHUNK] = zq - np.einsum("mp,mp->m", aq, beta)
+
+    _map(chunk, range(0, m, CHUNK), workers)
     return LocalFit(normal, resid)
+
+
+def _map(function, items, workers: int) -> list:
+    """``[function(i) for i in items]``, in ``workers`` threads when more than one."""
+    items = list(items)
+    if workers <= 1 or len(items) <= 1:
+        return [function(i) for i in items]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        return list(pool.map(function, items))
 
 
 def _frame(nb: np.ndarray, q: np.ndarray, w: np.ndarray):
@@ -154,7 +169,8 @@ def _solve(A, z, w):
 
 
 def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z: float = 5.0,
-                    floor: float = 1.0, isolation: float = 1.5, tree=None) -> tuple[np.ndarray, float]:
+                    floor: float = 1.0, isolation: float = 1.5, tree=None,
+                    workers: int = 1) -> tuple[np.ndarray, float]:
     """Points off the surface their neighbours make, and alone (stray triangulations).
 
     Parameters
@@ -175,6 +191,8 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
         thrown off the surface is alone).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``.
+    workers : int
+        Threads (speed only).
 
     Returns
     -------
@@ -189,8 +207,8 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     if k < 6:
         return np.zeros(n, dtype=bool), 0.0
     tree = cKDTree(points) if tree is None else tree
-    d, nb = tree.query(points, k=k + 1)
-    fit = local_fits(points, points, nb[:, 1:])
+    d, nb = tree.query(points, k=k + 1, workers=workers)
+    fit = local_fits(points, points, nb[:, 1:], workers=workers)
     scale = robust_scale(fit.residual)
     return (np.abs(fit.residual) > max(z * scale, floor * spacing)) & (d[:, 1] > isolation * spacing), scale
 
@@ -219,7 +237,7 @@ class Denoised:
 
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02) -> Denoised:
+            radius: float = 0.02, workers: int = 1) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -239,6 +257,8 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         No point moves farther than this many robust scales.
     z, floor, isolation : float
         Outlier test, as in `reject_outliers` (the nearest point of the same section counts).
+    workers : int
+        Threads fitting sections at the same time (speed only).
 
     Returns
     -------
@@ -251,16 +271,22 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     count = np.zeros(n)
     resid = np.zeros(n)
     alone = np.ones(n, dtype=bool)
-    fits = []
-    for j in range(member.shape[1]):
+
+    def section(j):
         idx = np.flatnonzero(member[:, j])
         k = int(min(neighbours, len(idx)))
         if k < 10:
-            continue
+            return None
         sub = points[idx]
         d, nb = cKDTree(sub).query(sub, k=k)
-        alone[idx] &= d[:, 1] > isolation * spacing
-        fits.append((idx, local_fits(sub, sub, nb, distance=d, radius=radius)))
+        return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
+
+    fits = []
+    for done in _map(section, range(member.shape[1]), workers):
+        if done is not None:
+            idx, far, fit = done
+            alone[idx] &= far
+            fits.append((idx, fit))
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
     scale = robust_scale(np.concatenate([f.residual for _, f in fits]))

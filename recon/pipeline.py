@@ -206,7 +206,7 @@ def _prepare(points, params, view_dir, head) -> Prepared:
             from .denoise import reject_outliers
 
             keep = ~reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z, c.outlier_floor,
-                                    c.outlier_isolation, tree=tree)[0]
+                                    c.outlier_isolation, tree=tree, workers=params.surface.workers)[0]
         if c.register_heads and head is not None:
             from .register import register_heads
 
@@ -333,7 +333,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         t0 = time.perf_counter()
         c = params.clean
         dn = denoise(p, meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
-                     c.outlier_floor, c.outlier_isolation, c.denoise_radius)
+                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0
