@@ -260,7 +260,8 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
 
         rp = _recon_params(params)
         with PeakMemory() as mem:
-            rec = recon.reconstruct(scan.points, m.name, rp, view_dir=scan.view_dir, fit=fit)
+            rec = recon.reconstruct(scan.points, m.name, rp, view_dir=scan.view_dir, fit=fit,
+                                    head=getattr(scan, "head", None))
         times = dict(rec.times)
         if fit is not None:   # shared by the methods of a scan: reported apart, not in "total"
             times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
@@ -270,6 +271,15 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
                      joints=rec.fit.joints)
         face_section = np.asarray(rec.face_section)
         row["points_unmeshed"] = int(rec.points_unmeshed)
+        row["outliers_rejected"] = int(rec.outliers.sum()) if rec.outliers is not None else 0
+        if rec.moved is not None:  # how far the vertices lie from their input points
+            used = np.zeros(len(rec.moved), dtype=bool)   # input points in a face
+            f = np.asarray(rec.faces).ravel()
+            used[f[f < len(rec.moved)]] = True
+            row["moved_mean_mm"] = float(1000 * rec.moved[used].mean()) if used.any() else 0.0
+            row["moved_max_mm"] = float(1000 * rec.moved[used].max()) if used.any() else 0.0
+        if rec.registration is not None and len(rec.registration.rotation) >= 2:
+            row["registration_deg"], row["registration_mm"] = rec.registration.offset(0, 1)
         row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
                     for k, v in rp.to_dict().items()})
     elif m.kind == "peer":
@@ -466,7 +476,7 @@ def _estimate_fit(scan, params):
 
     t0 = time.perf_counter()
     fit = estimate_fit(np.asarray(scan.points, dtype=np.float64), params,
-                       np.asarray(scan.view_dir, dtype=np.float64))
+                       np.asarray(scan.view_dir, dtype=np.float64), head=getattr(scan, "head", None))
     return fit, time.perf_counter() - t0
 
 

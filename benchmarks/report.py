@@ -102,8 +102,15 @@ class GateResult:
 
 
 def tracked_values(table) -> dict:
-    """{method: {posture: {metric: mean over the ok jobs, "n_jobs": count}}} of `TRACKED`."""
+    """{method: {posture: {metric: mean over the ok jobs, "n_jobs": count}}} of `TRACKED`; a
+    posture scanned with a preset other than ``paper`` is keyed ``"name [preset]"``."""
+    import numpy as np
+
     ok = table[table["status"] == "ok"]
+    if "scanner.preset" in ok.columns:  # a posture scanned with another preset is its own entry
+        preset = ok["scanner.preset"].fillna("paper").astype(str)
+        ok = ok.assign(body=np.where(preset == "paper", ok["body"].astype(str),
+                                     ok["body"].astype(str) + " [" + preset + "]"))
     out: dict = {}
     for (method, body), group in ok.groupby(["method", "body"], sort=True):
         values = {"n_jobs": int(len(group))}

@@ -837,7 +837,7 @@ def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
     if method in RECON_METHODS:
         params = ReconParams.from_overrides(recon)
         fit = _fit_for(scanned, params)
-        seconds = scanned.seconds.get(repr(params.fit), 0.0)
+        seconds = scanned.seconds.get(_fit_key(params), 0.0)
     row = bench_evaluate(scanned.body, scanned.scan, method, params, fit=fit,
                          fit_seconds=seconds, keep_mesh=True)
     row["time_scan_s"] = scanned.seconds.get("scan", math.nan)
@@ -854,13 +854,13 @@ def _fit_for(scanned: Scanned, params):
 
     from .bench import PeakMemory
 
-    key = repr(params.fit)
+    key = _fit_key(params)
     if key not in scanned.fits:
         started = time.perf_counter()
         with PeakMemory() as mem:
             try:
                 scanned.fits[key] = estimate_fit(check_points(scanned.scan.points), params,
-                                                 scanned.scan.view_dir)
+                                                 scanned.scan.view_dir, head=scanned.scan.head)
             except ReconError as exc:
                 scanned.fits[key] = exc
         scanned.seconds[key] = time.perf_counter() - started
@@ -869,6 +869,11 @@ def _fit_for(scanned: Scanned, params):
     if isinstance(fit, Exception):
         raise fit
     return fit
+
+
+def _fit_key(params) -> str:
+    """What the posture depends on: the fit's parameters and the cleaning before it."""
+    return repr(params.fit) + repr(getattr(params, "clean", None))
 
 
 def _scanner_config(setting: dict):

@@ -528,6 +528,49 @@ class SurfaceParams:
         _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 
+@dataclass(frozen=True)
+class CleanParams:
+    """Real scanner conditions (beyond the paper, whose clouds were noise-free): outlier
+    rejection before the fit, registration between heads, and a denoised surface
+    (`recon.denoise`, `recon.register`). ``outlier_z=0 denoise=False register_heads=False`` gives
+    the paper's input. The simple baseline is never denoised (it keeps the paper's surface).
+    """
+
+    outlier_z: float = field(default=5.0, metadata={
+        "help": "a point farther than this many robust scales (MAD) from its neighbours' surface "
+                "is an outlier (0 = keep every point)", "unit": "", "range": (0.0, None)})
+    outlier_floor: float = field(default=1.0, metadata={
+        "help": "outlier threshold at least this many point spacings", "unit": "", "range": (0.0, None)})
+    outlier_isolation: float = field(default=1.5, metadata={
+        "help": "an outlier also has no other point within this many point spacings", "unit": "",
+        "range": (0.0, None)})
+    outlier_neighbours: int = field(default=16, metadata={
+        "help": "neighbours of each outlier test's surface fit", "unit": "", "range": (6, None)})
+    denoise: bool = field(default=True, metadata={
+        "help": "proposed: mesh each point moved onto the robust local surface of its section",
+        "unit": "", "range": None})
+    denoise_neighbours: int = field(default=40, metadata={
+        "help": "points of each denoising fit", "unit": "", "range": (10, None)})
+    denoise_radius: float = field(default=0.02, metadata={
+        "help": "points of each denoising fit lie within this distance (at least 10 of them)",
+        "unit": "m", "range": (0.0, None)})
+    denoise_clamp: float = field(default=3.0, metadata={
+        "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
+    register_heads: bool = field(default=False, metadata={
+        "help": "correct the rigid offset between scanner heads by ICP on their overlap (needs the "
+                "head of each point)", "unit": "", "range": None})
+
+    def __post_init__(self):
+        _check(self.outlier_z >= 0, "outlier_z", self.outlier_z, ">= 0 (0 = off)")
+        _check(self.outlier_floor >= 0, "outlier_floor", self.outlier_floor, ">= 0 spacings")
+        _check(self.outlier_isolation >= 0, "outlier_isolation", self.outlier_isolation, ">= 0 spacings")
+        _check(int(self.outlier_neighbours) >= 6, "outlier_neighbours", self.outlier_neighbours, "an integer >= 6")
+        _check(int(self.denoise_neighbours) >= 10, "denoise_neighbours", self.denoise_neighbours,
+               "an integer >= 10")
+        _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
+        _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
+
+
 def _check(ok, name, value, what):
     if not ok:
         raise ReconError(f"parameter {name}={value!r}: must be {what}")
@@ -866,6 +909,8 @@ PAPER = {
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "hull_edge_min": 0.0,
+    # real scanner conditions (the paper's clouds were noise-free)
+    "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
     "fit_facing": 0, "fit_facing_reverse": 0, "match_size_both": 0, "match_alternatives": 0,
 }
@@ -873,11 +918,13 @@ PAPER = {
 
 @dataclass(frozen=True)
 class ReconParams:
-    """All parameters of the reconstruction: ``fit`` (posture estimation), ``cluster``, ``surface``."""
+    """All parameters of the reconstruction: ``fit`` (posture estimation), ``cluster``, ``surface``,
+    ``clean`` (outliers, registration, denoising)."""
 
     fit: FitParams = field(default_factory=FitParams)
     cluster: ClusterParams = field(default_factory=ClusterParams)
     surface: SurfaceParams = field(default_factory=SurfaceParams)
+    clean: CleanParams = field(default_factory=CleanParams)
 
     def paper(self) -> "ReconParams":
         """These parameters with every rule of ours switched off (`PAPER`): the paper's steps."""
@@ -889,8 +936,8 @@ class ReconParams:
 
     def stages(self) -> dict:
         """{stage name: that stage's dataclass} for the stages present."""
-        return {k: v for k, v in (("fit", self.fit), ("cluster", self.cluster), ("surface", self.surface))
-                if v is not None}
+        return {k: v for k, v in (("fit", self.fit), ("cluster", self.cluster), ("surface", self.surface),
+                                  ("clean", self.clean)) if v is not None}
 
     def to_dict(self) -> dict:
         """Flat {name: value} of every parameter."""

@@ -26,8 +26,9 @@ class Reconstruction:
     Attributes
     ----------
     vertices : (n, 3) float
-        The input points, metres (mesh vertices are the input points, by index; unused points
-        are in no face).
+        The mesh vertices, metres: the input points by index (unused points are in no face),
+        registered between heads and, for ``proposed`` with ``denoise``, moved onto their
+        section's robust surface (`points` keeps the input, `moved` says how far).
     faces : (m, 3) int
         Triangles, outward winding.
     face_section : (m,) int8
@@ -44,6 +45,14 @@ class Reconstruction:
         Sections skipped for too few points.
     points_unmeshed : int
         Input points in no face of the open surface (left out: outliers, or points no chart took).
+    points : (n, 3) float or None
+        The input points, metres.
+    moved : (n,) float or None
+        How far each vertex lies from its input point (registration and denoising), metres.
+    outliers : (n,) bool or None
+        Points rejected as outliers (before the fit, and in the charts): in no section, no face.
+    registration : recon.register.Registration or None
+        The correction applied to each head (``register_heads``).
     """
 
     vertices: np.ndarray
@@ -56,6 +65,10 @@ class Reconstruction:
     method: str = "proposed"
     skipped: tuple = ()
     points_unmeshed: int = 0
+    points: np.ndarray | None = None
+    moved: np.ndarray | None = None
+    outliers: np.ndarray | None = None
+    registration: object = None
 
     @property
     def point_index(self) -> np.ndarray:
@@ -159,8 +172,93 @@ def _check_view_dir(view_dir, n):
     return vd
 
 
-def estimate_fit(points, params: ReconParams, view_dir=None) -> BodyFit:
-    """Posture estimation through `recon.estimate_posture` (raises `ReconError` if unavailable)."""
+@dataclass(frozen=True, eq=False)
+class Prepared:
+    """A cloud made ready for the fit (`prepare`).
+
+    Attributes
+    ----------
+    points : (n, 3) float
+        Every input point, registered between heads when asked, metres.
+    view_dir : (n, 3) or (3,) float or None
+    keep : (n,) bool
+        Points that are not outliers.
+    registration : recon.register.Registration or None
+    """
+
+    points: np.ndarray
+    view_dir: np.ndarray | None
+    keep: np.ndarray
+    registration: object = None
+
+
+#: The last `prepare` result, by a digest of its inputs: a benchmark estimates the posture, then
+#: reconstructs the same cloud with it (deterministic, so reused as is; speed only).
+_PREPARED: dict = {}
+
+
+def prepare(points: np.ndarray, params: ReconParams, view_dir=None, head=None) -> Prepared:
+    """Outlier rejection (``outlier_z``), then registration between heads (``register_heads``,
+    when ``head`` (n,) is known), on checked points (n, 3)."""
+    import hashlib
+
+    digest = hashlib.sha1(repr(params.clean).encode())
+    for a in (points, view_dir, head):
+        digest.update(b"|" if a is None else np.ascontiguousarray(a).tobytes())
+    key = digest.hexdigest()
+    if key not in _PREPARED:
+        _PREPARED.clear()
+        _PREPARED[key] = _prepare(points, params, view_dir, head)
+    return _PREPARED[key]
+
+
+def _prepare(points, params, view_dir, head) -> Prepared:
+    from scipy.spatial import cKDTree
+
+    from .surface import median_spacing
+
+    c = params.clean
+    keep = np.ones(len(points), dtype=bool)
+    reg = None
+    if c.outlier_z > 0 or c.register_heads:
+        tree = cKDTree(points)
+        spacing = median_spacing(points, tree=tree)
+        if c.outlier_z > 0:
+            from .denoise import reject_outliers
+
+            keep = ~reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z, c.outlier_floor,
+                                    c.outlier_isolation, tree=tree, workers=params.surface.workers)[0]
+        if c.register_heads and head is not None:
+            from .register import register_heads
+
+            reg = register_heads(points[keep], head[keep], spacing)
+            points, view_dir = reg.apply(points, head, view_dir)
+    return Prepared(points, view_dir, keep, reg)
+
+
+def _check_head(head, n):
+    if head is None:
+        return None
+    h = np.asarray(head)
+    if h.shape != (n,) or not np.issubdtype(h.dtype, np.integer) or (len(h) and h.min() < 0):
+        raise ReconError(f"head must be ({n},) non-negative integers (the head that measured each point)")
+    return h.astype(np.int64)
+
+
+def estimate_fit(points, params: ReconParams, view_dir=None, head=None) -> BodyFit:
+    """Posture estimation through `recon.estimate_posture` on the `prepare`d points (outliers
+    left out, heads registered); raises `ReconError` if unavailable."""
+    p = check_points(points)
+    vd = _check_view_dir(view_dir, len(p))
+    prep = prepare(p, params, vd, _check_head(head, len(p)))
+    return _estimate(prep.points[prep.keep], params, _subset(prep.view_dir, prep.keep))
+
+
+def _subset(view_dir, keep):
+    return view_dir[keep] if view_dir is not None and np.ndim(view_dir) == 2 else view_dir
+
+
+def _estimate(points, params: ReconParams, view_dir=None) -> BodyFit:
     try:
         from .posture import estimate_posture
     except ImportError:
@@ -172,7 +270,7 @@ def estimate_fit(points, params: ReconParams, view_dir=None) -> BodyFit:
 
 
 def reconstruct(points, method: str = "proposed", params: ReconParams | None = None, *,
-                view_dir=None, fit: BodyFit | None = None) -> Reconstruction:
+                view_dir=None, fit: BodyFit | None = None, head=None) -> Reconstruction:
     """Reconstruct a body surface from a point cloud (paper sections 2 and 3).
 
     Parameters
@@ -192,6 +290,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         Unit directions toward the sensor, for orientation (and the fit).
     fit : BodyFit, optional
         Use this posture instead of estimating it (e.g. an oracle posture).
+    head : (n,) int, optional
+        Index of the scanner head that measured each point (for ``register_heads``).
 
     Returns
     -------
@@ -214,12 +314,17 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     steps = "simple" if method == "simple" else "proposed"   # the clustering's and surface's steps
     if method == "paper":  # the proposed steps with the paper's parameters
         params = params.paper()
-    p = check_points(points)
-    vd = _check_view_dir(view_dir, len(p))
+    raw = check_points(points)
+    vd_raw = _check_view_dir(view_dir, len(raw))
     times = {}
+    t0 = time.perf_counter()
+    prep = prepare(raw, params, vd_raw, _check_head(head, len(raw)))
+    keep = np.flatnonzero(prep.keep)
+    p, vd = prep.points[keep], _subset(prep.view_dir, prep.keep)
+    times["prepare"] = time.perf_counter() - t0
     if fit is None:
         t0 = time.perf_counter()
-        fit = estimate_fit(p, params, vd)
+        fit = _estimate(p, params, vd)
         times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
         times["fit"] = time.perf_counter() - t0
     elif not isinstance(fit, BodyFit):
@@ -253,21 +358,38 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
             sp = params.surface
             extra = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link,
                                sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
+    t_mesh = time.perf_counter() - t0
+    mesh_points = p
+    rejected = np.zeros(len(p), dtype=bool)
+    if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.denoise)
+        from .denoise import denoise
+
+        t0 = time.perf_counter()
+        c = params.clean
+        dn = denoise(p, meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
+                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers)
+        mesh_points, rejected = dn.points, dn.rejected
+        meshed = meshed & ~rejected[:, None]
+        times["denoise"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        faces, face_section, skipped = reconstruct_surfaces(p, meshed, fit, params.surface, vd,
+        faces, face_section, skipped = reconstruct_surfaces(mesh_points, meshed, fit, params.surface, vd,
                                                             drop_inner=steps == "proposed",
                                                             spacing=spacing, extra=extra)
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
-    times["surface"] = time.perf_counter() - t0
+    times["surface"] = t_mesh + time.perf_counter() - t0
     if len(faces) == 0:
         raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
                          "clustered points (is the fitted model placed on the cloud?)")
     from .complete import unmeshed_count
 
-    unmeshed = unmeshed_count(len(p), faces)
-    vertices = p
+    vertices = prep.points.copy()
+    vertices[keep] = mesh_points
+    moved = np.linalg.norm(vertices - raw, axis=1)
+    faces = keep[faces]
+    unmeshed = unmeshed_count(len(raw), faces)
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
         from .complete import closed_surface
 
@@ -275,11 +397,16 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         sp = params.surface
         solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
                   if name in fit.sections and name not in skipped] + list(extra)
-        cv, cf, face_section = closed_surface(p, solids, spacing, sp.close_voxel, sp.close_cell,
-                                              sp.close_envelope)
-        vertices, faces = np.concatenate([p, cv]), cf + len(p)
+        cv, cf, face_section = closed_surface(mesh_points, solids, spacing, sp.close_voxel,
+                                              sp.close_cell, sp.close_envelope)
+        vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start
-    return Reconstruction(vertices=vertices, faces=faces, face_section=face_section, point_sections=member,
-                          fit=fit, times=times, params=params, method=method, skipped=tuple(skipped),
-                          points_unmeshed=unmeshed)
+    sections = np.zeros((len(raw), member.shape[1]), dtype=bool)
+    sections[keep] = member & ~rejected[:, None]
+    outliers = ~prep.keep
+    outliers[keep[rejected]] = True
+    return Reconstruction(vertices=vertices, faces=faces, face_section=face_section,
+                          point_sections=sections, fit=fit, times=times, params=params, method=method,
+                          skipped=tuple(skipped), points_unmeshed=unmeshed, points=raw, moved=moved,
+                          outliers=outliers, registration=prep.registration)

@@ -1,0 +1,209 @@
+"""Registration between scanner heads: robust point-to-surface ICP on their overlap (beyond the paper).
+
+The paper leaves the misalignment between its cameras to future work. Each head's points are
+moved rigidly onto the surface the other heads measured, where they overlap: a point of one head
+is paired with the robust quadratic surface (`recon.denoise.local_fits`) of the other heads'
+points near it, where the two surfaces are alike in direction (PCA normals within
+``normal_cos``), and the point-to-surface distances are minimised by Gauss-Newton with Tukey
+weights on the MAD scale of the residuals, the pairing distance shrinking as the fit converges.
+
+Only where the heads really overlap (both measured the same surface, their points interleaved)
+is the offset measured. Heads stacked in a tower overlap over tens of centimetres and are
+registered to a few hundredths of a degree; the paper's front and rear heads meet only along
+the silhouettes, seen edge on, where neither measures the surface beyond its own side: a head
+with less than ``min_overlap`` of its points in an overlap is left as it is. Directions of the
+motion whose standard error exceeds ``max_error`` are not moved either (truncated Gauss-Newton on
+the eigenvectors of the normal matrix); `Registration` reports how many were estimated. The
+heads are moved symmetrically (their mean motion removed), so no head is taken as exact.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .denoise import TUKEY, local_fits, robust_scale
+
+
+@dataclass(frozen=True, eq=False)
+class Registration:
+    """The rigid corrections applied to each head.
+
+    Attributes
+    ----------
+    rotation : (h, 3, 3) float
+        Rotation applied to each head's points about ``center``.
+    translation : (h, 3) float
+        Then this translation, metres.
+    center : (3,) float
+        Centre of the rotations (the cloud's bounding-box centre), metres.
+    pairs : (h,) int
+        Overlap pairs of each head in the last round.
+    observable : (h,) int
+        Of the 6 motion directions, how many were estimated for each head (the rest: their
+        standard error exceeded ``max_error``).
+    """
+
+    rotation: np.ndarray
+    translation: np.ndarray
+    center: np.ndarray
+    pairs: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+    observable: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=int))
+
+    def offset(self, a: int = 0, b: int = 1) -> tuple[float, float]:
+        """(degrees, millimetres) of the estimated misregistration of head ``b`` against head ``a``:
+        the rotation angle and the translation at ``center`` of ``b``'s correction relative to
+        ``a``'s."""
+        r = self.rotation[a].T @ self.rotation[b]
+        t = self.rotation[a].T @ (self.translation[b] - self.translation[a])
+        angle = np.degrees(np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1)))
+        return float(angle), float(1000 * np.linalg.norm(t))
+
+    def apply(self, points: np.ndarray, head: np.ndarray, view_dir: np.ndarray | None = None):
+        """``points`` (n, 3) and ``view_dir`` (n, 3) with each head's correction applied."""
+        p = np.array(points, dtype=np.float64)
+        vd = None if view_dir is None else np.array(np.broadcast_to(view_dir, p.shape), dtype=np.float64)
+        for h in range(len(self.rotation)):
+            sel = head == h
+            p[sel] = (p[sel] - self.center) @ self.rotation[h].T + self.center + self.translation[h]
+            if vd is not None:
+                vd[sel] = vd[sel] @ self.rotation[h].T
+        return p, vd
+
+
+def _rotvec(w: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation by the rotation vector ``w`` (radians), Rodrigues."""
+    a = float(np.linalg.norm(w))
+    if a < 1e-15:
+        return np.eye(3)
+    k = w / a
+    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
+
+
+def _log_rotation(r: np.ndarray) -> np.ndarray:
+    """Rotation vector (3,) of a rotation matrix (angles well below pi)."""
+    angle = np.arccos(np.clip((np.trace(r) - 1) / 2, -1, 1))
+    if angle < 1e-12:
+        return np.zeros(3)
+    v = np.array([r[2, 1] - r[1, 2], r[0, 2] - r[2, 0], r[1, 0] - r[0, 1]])
+    return v * angle / (2 * np.sin(angle))
+
+
+def _normals(query: np.ndarray, points: np.ndarray, tree, k: int) -> np.ndarray:
+    """(m, 3) unit normals (unsigned) at ``query`` by PCA of their ``k`` nearest ``points``
+    (``tree`` of them)."""
+    _, nb = tree.query(query, k=k)
+    q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+    return np.linalg.eigh(np.swapaxes(q, 1, 2) @ q)[1][:, :, 0]
+
+
+def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: float = 0.005,
+                   iterations: int = 20, rounds: int = 2, max_error: float = 5e-4, min_pairs: int = 200,
+                   min_overlap: float = 0.05, neighbours: int = 16, normal_cos: float = 0.7,
+                   max_pairs: int = 2000) -> Registration:
+    """Estimate each head's rigid correction from its overlap with the other heads.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    head : (n,) int
+        Head index of each point (0 .. h-1).
+    spacing : float
+        Median point spacing, metres.
+    reach : float
+        The overlap: points with a point of another head within this distance (at least 2
+        spacings), metres. Pairs may be twice as far apart at the start; the limit then shrinks
+        towards 4 robust scales of the residuals plus 2 spacings.
+    iterations : int
+        Gauss-Newton steps per head and round, at most.
+    rounds : int
+        Every head is registered against the others, this many times over.
+    max_error : float
+        A motion direction is estimated only when its standard error is below this, metres (a
+        rotation's at 1 m from the centre).
+    min_pairs : int
+        A head with fewer overlap pairs is left as it is;
+    min_overlap : float
+        also when less than this fraction of its points overlap another head.
+    neighbours : int
+        Points of each surface fit and normal.
+    normal_cos : float
+        Pairs whose (unsigned) normals make a cosine below this are not paired.
+    max_pairs : int
+        Points of each head's overlap used, at most (a seeded sample).
+
+    Returns
+    -------
+    Registration
+    """
+    from scipy.spatial import cKDTree
+
+    head = np.asarray(head).astype(np.int64)
+    nh = int(head.max()) + 1 if len(head) else 0
+    center = (points.min(axis=0) + points.max(axis=0)) / 2
+    rot = np.repeat(np.eye(3)[None], max(nh, 1), axis=0)
+    trans = np.zeros((max(nh, 1), 3))
+    pairs = np.zeros(nh, dtype=int)
+    observable = np.zeros(nh, dtype=int)
+    if nh < 2:
+        return Registration(rot[:nh], trans[:nh], center, pairs, observable)
+    k = int(min(neighbours, len(points) - 1))
+    reach = max(reach, 2 * spacing)
+    cur = np.array(points, dtype=np.float64)
+    for _ in range(rounds):
+        for h in range(nh):
+            mine = head == h
+            src, dst = np.flatnonzero(mine), np.flatnonzero(~mine)
+            if len(src) < min_pairs or len(dst) < min_pairs:
+                continue
+            tree = cKDTree(cur[dst])
+            near = np.isfinite(tree.query(cur[src], distance_upper_bound=reach)[0])
+            if near.sum() < max(min_pairs, min_overlap * len(src)):
+                continue
+            src = src[near]
+            if len(src) > max_pairs:  # a seeded sample of the overlap (speed only)
+                src = np.sort(np.random.default_rng(h).choice(src, max_pairs, replace=False))
+            p0 = cur[src]
+            n0 = _normals(p0, cur[mine], cKDTree(cur[mine]), k)
+            r_h, t_h = np.eye(3), np.zeros(3)
+            limit = 2 * reach
+            for _ in range(iterations):
+                p = (p0 - center) @ r_h.T + center + t_h
+                d, nb = tree.query(p, k=k)
+                ok = d[:, 0] < limit
+                fit = local_fits(cur[dst], p[ok], nb[ok], iterations=1)
+                same = np.abs(np.einsum("ij,ij->i", fit.normal, n0[ok] @ r_h.T)) > normal_cos
+                ok[ok] = same
+                if ok.sum() < min_pairs:
+                    break
+                res, nt, ps = fit.residual[same], fit.normal[same], p[ok]
+                scale = robust_scale(res, floor=1e-5)
+                u = res / (TUKEY * scale)
+                w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+                J = np.column_stack([np.cross(ps - center, nt), nt])
+                H = J.T @ (w[:, None] * J)
+                g = J.T @ (w * res)
+                lam, vec = np.linalg.eigh(H)
+                # standard error of each eigen-direction (a rotation's in metres at 1 m)
+                se = scale / np.sqrt(np.maximum(lam, 1e-300))
+                keep = se < max_error
+                step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
+                dr = _rotvec(step[:3])
+                r_h = dr @ r_h
+                t_h = dr @ t_h + step[3:]
+                limit = max(4 * scale + 2 * spacing, 0.7 * limit)
+                pairs[h], observable[h] = int(ok.sum()), int(keep.sum())
+                if np.abs(step).max() < 1e-6:
+                    break
+            cur[mine] = (cur[mine] - center) @ r_h.T + center + t_h
+            rot[h] = r_h @ rot[h]
+            trans[h] = r_h @ trans[h] + t_h
+    # remove the heads' mean motion: the corrections are relative, no head is exact
+    back = _rotvec(-np.mean([_log_rotation(r) for r in rot[:nh]], axis=0))
+    t_mean = trans[:nh].mean(axis=0)
+    for h in range(nh):
+        rot[h] = back @ rot[h]
+        trans[h] = back @ (trans[h] - t_mean)
+    return Registration(rot[:nh], trans[:nh], center, pairs, observable)

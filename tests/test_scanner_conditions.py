@@ -1,0 +1,129 @@
+"""Real scanner conditions: denoising, outlier rejection and head registration on analytic surfaces."""
+
+import numpy as np
+
+from bodyscan.recon.denoise import denoise, reject_outliers
+from bodyscan.recon.register import _log_rotation, _rotvec, register_heads
+
+R = 0.05        # cylinder radius, metres
+PITCH = 0.005   # scan pitch, metres
+
+
+def scanned_cylinder(sigma=0.0, pitch=PITCH, radius=R, height=0.4, seed=0):
+    """A vertical cylinder seen by a front camera (at -y) and a rear one (at +y), parallel
+    projection on a ``pitch`` grid in x and z, with Gaussian range noise ``sigma`` along the rays.
+
+    Returns points (n, 3), view_dir (n, 3), head (n,), true points (n, 3).
+    """
+    x = np.arange(-radius + pitch / 2, radius, pitch)
+    z = np.arange(0.0, height, pitch)
+    X, Z = np.meshgrid(x, z)
+    X, Z = X.ravel(), Z.ravel()
+    y = np.sqrt(radius ** 2 - X ** 2)
+    true = np.concatenate([np.column_stack([X, -y, Z]), np.column_stack([X, y, Z])])
+    head = np.repeat([0, 1], len(X))
+    vd = np.where(head[:, None] == 0, [0.0, -1.0, 0.0], [0.0, 1.0, 0.0])
+    noise = np.random.default_rng(seed).normal(0.0, sigma, len(true)) if sigma else np.zeros(len(true))
+    return true - noise[:, None] * vd, vd, head, true
+
+
+def radial_error(p, radius=R):
+    return np.hypot(p[:, 0], p[:, 1]) - radius
+
+
+def test_denoised_cylinder_lies_within_0_3_sigma_of_the_true_surface():
+    sigma = 0.001
+    before, after = [], []
+    for seed in range(3):   # the RMS over three noise draws
+        p, vd, head, true = scanned_cylinder(sigma, seed=seed)
+        inner = (true[:, 2] > 0.03) & (true[:, 2] < 0.37)   # the open ends have one-sided fits
+        d = denoise(p, np.ones((len(p), 1), bool), PITCH)
+        before.append(radial_error(p[inner]))
+        after.append(radial_error(d.points[inner]))
+        assert 0.3 * sigma < d.scale < 1.5 * sigma      # the scale comes from the data
+        assert np.allclose(d.moved, np.linalg.norm(d.points - p, axis=1))
+        assert d.moved.max() <= 3.0 * d.scale + 1e-12   # clamped
+        assert not d.rejected.any()
+    assert np.sqrt(np.mean(np.concatenate(before) ** 2)) > 0.5 * sigma   # the noise was there
+    assert np.sqrt(np.mean(np.concatenate(after) ** 2)) < 0.3 * sigma
+
+
+def test_noise_free_cylinder_is_not_moved():
+    p, vd, head, true = scanned_cylinder(0.0)
+    d = denoise(p, np.ones((len(p), 1), bool), PITCH)
+    assert d.moved.max() < 1e-4    # 0.1 mm: the noise-free limit is 0.5 mm
+    assert not reject_outliers(p, PITCH)[0].any()
+
+
+def test_each_section_is_fitted_on_its_own_points():
+    # two parallel cylinders 2 cm apart: denoised together as one section, the neighbourhoods
+    # would straddle the gap; as two sections each stays on its own surface
+    p, vd, head, true = scanned_cylinder(0.001)
+    q = p + [2 * R + 0.02, 0, 0]
+    both = np.concatenate([p, q])
+    member = np.zeros((len(both), 2), bool)
+    member[:len(p), 0] = member[len(p):, 1] = True
+    d = denoise(both, member, PITCH)
+    err = np.concatenate([radial_error(d.points[:len(p)]), radial_error(d.points[len(p):] - [2 * R + 0.02, 0, 0])])
+    assert np.sqrt(np.mean(err ** 2)) < 0.4 * 0.001
+
+
+def test_planted_outliers_are_removed():
+    p, vd, head, true = scanned_cylinder(0.001)
+    rng = np.random.default_rng(1)
+    which = rng.choice(len(p), int(0.005 * len(p)) + 5, replace=False)
+    shift = rng.uniform(0.01, 0.05, len(which)) * rng.choice([-1, 1], len(which))
+    p = p.copy()
+    p[which] -= shift[:, None] * vd[which]   # along the camera ray, 1 to 5 cm
+    out, scale = reject_outliers(p, PITCH)
+    planted = np.zeros(len(p), bool)
+    planted[which] = True
+    off = planted & (np.abs(radial_error(p)) > 0.01)   # off the surface by 1 cm or more (near the
+    assert off.sum() >= 0.6 * planted.sum()             # silhouettes a shift along the ray is not)
+    assert (out & off).sum() >= 0.9 * off.sum()
+    assert (out & ~planted).sum() <= 0.001 * len(p)
+    assert scale < 0.002    # the outliers do not inflate the noise scale
+
+
+def two_head_surface(overlap=0.3, n=30000, seed=0):
+    """A smooth bumpy closed surface measured by two heads whose fields overlap in a band
+    (``|y| < overlap`` of the unit direction), like the upper and lower heads of a tower.
+
+    Returns points (n', 3), head (n',), centre (3,).
+    """
+    rng = np.random.default_rng(seed)
+    u = rng.normal(size=(n, 3))
+    u /= np.linalg.norm(u, axis=1)[:, None]
+    r = 0.3 * (1 + 0.1 * np.sin(5 * u[:, 0]) * np.cos(4 * u[:, 2]) + 0.05 * np.sin(7 * u[:, 1]))
+    p = u * r[:, None] * [1.0, 0.6, 2.5]
+    a, b = u[:, 1] < overlap, u[:, 1] > -overlap
+    points = np.concatenate([p[a], p[b]])
+    head = np.concatenate([np.zeros(a.sum(), int), np.ones(b.sum(), int)])
+    return points, head, (points.min(axis=0) + points.max(axis=0)) / 2
+
+
+def test_planted_misregistration_between_heads_is_recovered():
+    p, head, c = two_head_surface()
+    axis = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
+    rot, shift = _rotvec(np.radians(0.5) * axis), np.array([0.0015, -0.001, 0.0008])
+    q = p.copy()
+    q[head == 1] = (p[head == 1] - c) @ rot.T + c + shift      # 0.5 degrees and 2 mm
+    reg = register_heads(q, head, spacing=0.004)
+    angle, mm = reg.offset(0, 1)
+    assert abs(angle - 0.5) < 0.1 and abs(mm - 1000 * np.linalg.norm(shift)) < 0.5
+    fixed, _ = reg.apply(q, head)
+    # what is left between the heads: head 1's points against where head 0's frame puts them
+    r1 = reg.rotation[0].T @ reg.rotation[1] @ rot
+    assert np.degrees(np.linalg.norm(_log_rotation(r1))) < 0.1
+    back = (fixed[head == 1] - c - reg.translation[0]) @ reg.rotation[0] + c   # in head 0's frame
+    assert np.sqrt(np.mean(np.sum((back - p[head == 1]) ** 2, axis=1))) < 0.0005
+
+
+def test_heads_that_do_not_overlap_are_left_alone():
+    # front and rear heads of a cylinder meet only at the silhouettes, seen edge on
+    p, vd, head, true = scanned_cylinder(0.001)
+    q = p.copy()
+    q[head == 1] += [0.002, 0.0, 0.0]
+    reg = register_heads(q, head, spacing=PITCH)
+    assert reg.offset(0, 1) == (0.0, 0.0)
+    assert (reg.pairs == 0).all()
