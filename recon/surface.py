@@ -706,9 +706,11 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         False (the simple baseline): the paper's surface.
     spacing : float, optional
         Median point spacing of ``points``, metres (default: `median_spacing`).
-    extra : list of (int, (k,) int, SectionShape[, dict])
-        More charts: section index, point indices, chart and changes of ``params`` for it
-        (`recon.complete.far_charts`); their faces join the section's.
+    extra : list of (int, (k,) int, SectionShape[, dict[, (k',) int]])
+        More charts: section index, point indices, chart, changes of ``params`` for it and the
+        points two of each of its faces' corners must be (`recon.complete.far_charts`: a far
+        part's own points; its faces on the points it joins would overlap its section's chart's,
+        edges in three faces); their faces join the section's.
 
     Returns
     -------
@@ -756,7 +758,10 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     def run(job):
         j, idx, shape = job[:3]
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
-        return j, idx[section_surface(points[idx], shape, own, spacing)]
+        f = idx[section_surface(points[idx], shape, own, spacing)]
+        if len(job) > 4:  # only faces with an edge between these points (the rest: other charts')
+            f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
+        return j, f
 
     if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
