@@ -272,8 +272,11 @@ def score_command(args) -> int:
     if scan is not None:
         from scipy.spatial import cKDTree
 
-        if vertices.shape == scan.points.shape and np.array_equal(vertices, scan.points):
-            point_index = np.arange(len(vertices))     # a recon mesh: the cloud's points, in order
+        stored = _vertex_points(mesh, len(vertices), len(scan.points))
+        if stored is not None:                          # a recon mesh: each vertex's input point
+            point_index = stored
+        elif vertices.shape == scan.points.shape and np.array_equal(vertices, scan.points):
+            point_index = np.arange(len(vertices))     # the cloud's points, in order
         else:
             d, i = cKDTree(scan.points).query(vertices, distance_upper_bound=1e-6)
             point_index = np.where(np.isfinite(d), i, -1)
@@ -312,6 +315,21 @@ def _warn_if_other_body(vertices, body, metric_params, where) -> None:
         warnings.warn(f"{where}: only {100 * near.mean():.0f} % of the mesh's vertices lie within "
                       f"{100 * MATCH_DISTANCE:g} cm of the body {body.name!r}: is it a mesh of this body, "
                       "in the body's frame (metres)?", stacklevel=2)
+
+
+def _vertex_points(mesh, n_vertices, n_points):
+    """(V,) int input point of each vertex from a `recon` mesh's vertex property ``point``
+    (-1: none), or None when the mesh has none or it does not fit this cloud."""
+    import numpy as np
+
+    raw = getattr(mesh, "metadata", {}).get("_ply_raw", {})
+    data = raw.get("vertex", {}).get("data")
+    if data is None or "point" not in (data.dtype.names or ()):
+        return None
+    point = np.asarray(data["point"]).astype(np.int64).reshape(-1)
+    if len(point) != n_vertices or point.max(initial=-1) >= n_points:
+        return None
+    return point
 
 
 def _point_sections(mesh, faces, point_index, n_points):

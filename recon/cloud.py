@@ -46,12 +46,16 @@ class Cloud:
         ``comment bodyscan <key> <json>`` header lines of a PLY, as {key: value}.
     source : str
         The file read.
+    head : (n,) int64 or None
+        Per point, the index of the scanner head that measured it, when the file has one (a PLY
+        vertex property ``head``; for registration between heads).
     """
 
     points: np.ndarray
     view_dir: np.ndarray | None = None
     meta: dict = field(default_factory=dict)
     source: str = ""
+    head: np.ndarray | None = None
 
 
 def check_points(points, where: str = "points", *, min_points: int = MIN_POINTS) -> np.ndarray:
@@ -109,8 +113,9 @@ def read_cloud(path) -> Cloud:
         raise ReconError(f"{path}: is a directory, not a point cloud file")
     suffix = path.suffix.lower()
     try:
+        head = None
         if suffix == ".ply":
-            points, view, meta = _read_ply(path)
+            points, view, meta, head = _read_ply(path)
         elif suffix in (".xyz", ".txt", ".asc", ".pts", ".csv"):
             points, view, meta = _read_text(path), None, {}
         elif suffix == ".pcd":
@@ -133,10 +138,11 @@ def read_cloud(path) -> Cloud:
                       stacklevel=2)
         points = points[finite]
         view = view[finite] if view is not None else None
+        head = head[finite] if head is not None else None
     points = check_points(points, str(path))
     if view is not None:
         view = view / np.linalg.norm(view, axis=1, keepdims=True)
-    return Cloud(points=points, view_dir=view, meta=meta, source=str(path))
+    return Cloud(points=points, view_dir=view, meta=meta, source=str(path), head=head)
 
 
 # -- PLY ----------------------------------------------------------------------------------------
@@ -187,12 +193,12 @@ def _read_ply(path: Path):
         raise ReconError(f"{path}: PLY has no vertex element first")
     _, count, props = elements[0]
     if any(t is None for _, t in props):
-        return _read_ply_trimesh(path) + (meta,)
+        return _read_ply_trimesh(path) + (meta, None)
     names = [n for n, _ in props]
     if not all(c in names for c in "xyz"):
         raise ReconError(f"{path}: PLY vertices lack x, y, z")
     # ground-truth properties are never kept: only x y z and the viewing direction leave this function
-    wanted = [n for n in ("x", "y", "z", "vx", "vy", "vz") if n in names and not n.startswith("gt_")]
+    wanted = [n for n in ("x", "y", "z", "vx", "vy", "vz", "head") if n in names and not n.startswith("gt_")]
     if fmt == "ascii":
         cols = [names.index(n) for n in wanted]
         data = np.loadtxt(path, skiprows=len(header) + 2, max_rows=count, usecols=cols, ndmin=2,
@@ -209,7 +215,10 @@ def _read_ply(path: Path):
     points = np.stack([table["x"], table["y"], table["z"]], axis=1)
     view = np.stack([table[n] for n in ("vx", "vy", "vz")], axis=1) if "vz" in table and "vx" in table \
         and "vy" in table else None
-    return points, view, meta
+    head = table["head"].astype(np.int64) if "head" in table else None
+    if head is not None and (len(head) == 0 or head.min() < 0):
+        head = None
+    return points, view, meta, head
 
 
 def _read_ply_trimesh(path: Path):

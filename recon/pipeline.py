@@ -91,16 +91,20 @@ class Reconstruction:
         return trimesh.Trimesh(self.vertices, self.faces, process=False)
 
     def write(self, path) -> Path:
-        """Write the mesh as binary PLY with the points' sections and a face property ``section``;
-        see `write_mesh`."""
-        return write_mesh(path, self.vertices, self.faces, self.face_section, self.point_sections)
+        """Write the mesh as binary PLY with each vertex's input point and sections and a face
+        property ``section``; see `write_mesh`."""
+        return write_mesh(path, self.vertices, self.faces, self.face_section, self.point_sections,
+                          self.point_index)
 
 
 def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.ndarray,
-               point_sections: np.ndarray | None = None) -> Path:
-    """Write a binary little-endian PLY: vertex x, y, z (double, so that the vertices are the
-    cloud's points exactly) and ``sections`` (bit s set: the vertex is in section s), face
-    vertex_indices and section.
+               point_sections: np.ndarray | None = None, point_index: np.ndarray | None = None) -> Path:
+    """Write a binary little-endian PLY: vertex x, y, z (double, so that undenoised vertices are
+    the cloud's points exactly), ``point`` (the input point of the vertex, -1 for none) and
+    ``sections`` (bit s set: the vertex's point is in section s); face vertex_indices and section.
+
+    The ``point`` property is what lets `bodyscan score` pair the vertices with the cloud's points
+    exactly when they moved (denoising) or were added (a closed surface).
 
     Parameters
     ----------
@@ -108,21 +112,29 @@ def write_mesh(path, vertices: np.ndarray, faces: np.ndarray, face_section: np.n
     vertices : (n, 3) float, metres
     faces : (m, 3) int
     face_section : (m,) int
-    point_sections : (n, 11) bool, optional
-        Section memberships of the vertices (written as zero without).
+    point_sections : (p, 11) bool, optional
+        Section memberships of the input points, p <= n (written as zero without).
+    point_index : (n,) int, optional
+        Input point of each vertex, -1 for none (default: vertex i is point i when i < p).
     """
     path = Path(path)
-    v = np.zeros(len(vertices), dtype=[("xyz", "<f8", (3,)), ("sections", "<u2")])
+    v = np.zeros(len(vertices), dtype=[("xyz", "<f8", (3,)), ("point", "<i4"), ("sections", "<u2")])
     v["xyz"] = np.asarray(vertices, dtype=np.float64)
+    n_points = 0 if point_sections is None else len(point_sections)
+    if point_index is None:
+        point_index = np.where(np.arange(len(v)) < n_points, np.arange(len(v)), -1)
+    v["point"] = np.asarray(point_index).reshape(len(v))
     if point_sections is not None:
-        bits = np.asarray(point_sections, bool).reshape(len(v), -1)
-        v["sections"] = (bits * (1 << np.arange(bits.shape[1]))).sum(axis=1)
+        bits = np.asarray(point_sections, bool).reshape(n_points, -1)
+        code = (bits * (1 << np.arange(bits.shape[1]))).sum(axis=1)
+        has = v["point"] >= 0
+        v["sections"][has] = code[v["point"][has]]
     f = np.asarray(faces)
     header = (
         "ply\nformat binary_little_endian 1.0\ncomment bodyscan reconstruction; face section indexes "
-        + " ".join(SECTIONS) + "; vertex sections: bit s set for section s"
+        + " ".join(SECTIONS) + "; vertex point: input point (-1 none); vertex sections: bit s set for section s"
         + f"\nelement vertex {len(v)}\nproperty double x\nproperty double y\n"
-        f"property double z\nproperty ushort sections\nelement face {len(f)}\n"
+        f"property double z\nproperty int point\nproperty ushort sections\nelement face {len(f)}\n"
         "property list uchar int vertex_indices\nproperty uchar section\nend_header\n"
     )
     rec = np.zeros(len(f), dtype=[("n", "u1"), ("idx", "<i4", (3,)), ("section", "u1")])

@@ -70,7 +70,8 @@ def load_fit(path):
 
 
 def read_points(path):
-    """(points (n, 3), view_dir (n, 3) or None) of a cloud file, without any ground truth."""
+    """(points (n, 3), view_dir (n, 3) or None, head (n,) or None) of a cloud file, without any
+    ground truth."""
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file")
@@ -80,14 +81,14 @@ def read_points(path):
         read_cloud = None
     if read_cloud is not None:
         cloud = read_cloud(path)
-        return np.asarray(cloud.points), cloud.view_dir
+        return np.asarray(cloud.points), cloud.view_dir, cloud.head
     import trimesh  # fallback until recon.cloud lands: xyz only
 
     try:
         data = trimesh.load(path, process=False)
     except Exception as exc:
         raise ReconError(f"{path}: cannot read it as a point cloud ({type(exc).__name__}: {exc})") from None
-    return np.asarray(data.vertices, dtype=np.float64), None
+    return np.asarray(data.vertices, dtype=np.float64), None, None
 
 
 def run(args) -> int:
@@ -107,11 +108,11 @@ def run(args) -> int:
     if args.preview:
         check_out(args.preview, option="--preview", error=ReconError)
     fit = load_fit(args.fit) if args.fit else None
-    points, view_dir = read_points(args.cloud)
+    points, view_dir, head = read_points(args.cloud)
     print(f"reconstruct: {len(points)} points, method {args.method}", file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        rec = reconstruct(points, args.method, params, view_dir=view_dir, fit=fit)
+        rec = reconstruct(points, args.method, params, view_dir=view_dir, fit=fit, head=head)
     for w in caught:
         print(f"reconstruct: warning: {w.message}", file=sys.stderr)
     rec.write(out)

@@ -54,7 +54,7 @@ def test_simulator_ply_keeps_xyz_and_view_and_drops_ground_truth(tmp_path, ascii
     np.testing.assert_allclose(cloud.view_dir, np.tile([0, -1.0, 0], (len(pts), 1)))
     assert cloud.meta["config"] == {"k": 1, "resolution": 0.01}
     # nothing reachable from the object carries ground truth
-    assert set(vars(cloud)) == {"points", "view_dir", "meta", "source"}
+    assert set(vars(cloud)) == {"points", "view_dir", "meta", "source", "head"}   # head: sensor data
     assert not any(k.startswith("gt_") for k in cloud.meta)
 
 

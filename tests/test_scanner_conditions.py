@@ -127,3 +127,17 @@ def test_heads_that_do_not_overlap_are_left_alone():
     reg = register_heads(q, head, spacing=PITCH)
     assert reg.offset(0, 1) == (0.0, 0.0)
     assert (reg.pairs == 0).all()
+
+
+def test_the_cloud_reader_keeps_the_heads_and_no_ground_truth(tmp_path):
+    from bodyscan import simulator
+    from bodyscan.recon import read_cloud
+
+    rng = np.random.default_rng(0)
+    n = 500
+    scan = simulator.Scan(points=rng.uniform(0, 1, (n, 3)), head=np.repeat([0, 1], n // 2).astype(np.int16),
+                          view_dir=np.tile(np.float32([0, -1, 0]), (n, 1)), gt_face=np.arange(n),
+                          gt_section=np.zeros(n, np.int8), gt_normal=np.zeros((n, 3), np.float32))
+    cloud = read_cloud(simulator.write_cloud(scan, tmp_path / "c.ply"))
+    assert np.array_equal(cloud.head, scan.head)
+    assert not any(k.startswith("gt_") for k in vars(cloud))
