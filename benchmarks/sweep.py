@@ -836,14 +836,15 @@ def evaluate(scanned: Scanned, method: str, recon: dict) -> dict:
     fit, seconds, params = None, 0.0, (dict(recon) or None)
     if method in RECON_METHODS:
         params = ReconParams.from_overrides(recon)
-        fit = _fit_for(scanned, params)
-        seconds = scanned.seconds.get(_fit_key(params), 0.0)
+        fitted = params.paper() if method == "paper" else params   # the paper fits its own way
+        fit = _fit_for(scanned, fitted)
+        seconds = scanned.seconds.get(_fit_key(fitted), 0.0)
     row = bench_evaluate(scanned.body, scanned.scan, method, params, fit=fit,
                          fit_seconds=seconds, keep_mesh=True)
     row["time_scan_s"] = scanned.seconds.get("scan", math.nan)
     row["peak_memory_scan_mb"] = scanned.memory.get("scan", math.nan)
-    if params is not None:
-        row["peak_memory_fit_mb"] = scanned.memory.get(repr(params.fit), math.nan)
+    if fit is not None:
+        row["peak_memory_fit_mb"] = scanned.memory.get(_fit_key(fitted), math.nan)
     return row
 
 
