@@ -47,7 +47,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from bodyscan.recon.bodymodel import LIMBS
+from bodyscan.recon.posture.bodymodel import LIMBS
 
 #: Limb sections and the ground-truth bone each follows.
 BONES = {sec: bone for prox, dist, a, b, c in LIMBS for sec, bone in ((prox, (a, b)), (dist, (b, c)))}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from bodyscan.recon.bodymodel import JOINT_CAP
+from bodyscan.recon.posture.bodymodel import JOINT_CAP
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 
 #: section: (start joint, direction joint, free end?). The axis runs along start -> direction joint,

@@ -38,7 +38,7 @@ RULES = ("single", "refine", "adopt", "3+", "joint", "two", "none")
 
 def rule_of_points(points, fit, params, coords, tree):
     """(n,) int index into `RULES`: the clustering rule that decided each point (proposed)."""
-    from bodyscan.recon import cluster as C
+    from bodyscan.recon.clustering import cluster as C
 
     cp = params.cluster
     r, theta, h = coords
@@ -100,7 +100,7 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
     out["acc"], out["any"] = acc["section_accuracy"], acc["section_accuracy_any"]
     from scipy.spatial import cKDTree
 
-    from bodyscan.recon.cluster import section_coordinates
+    from bodyscan.recon.clustering.cluster import section_coordinates
 
     p = np.asarray(s.points, dtype=float)
     widest = max(sh.width for sh in fit.sections.values())

@@ -16,6 +16,6 @@ from .pipeline import Reconstruction, reconstruct, write_mesh  # noqa: E402
 __all__ += ["ClusterParams", "ReconParams", "SurfaceParams", "Reconstruction", "reconstruct", "write_mesh"]
 
 from .cloud import Cloud, read_cloud  # noqa: E402
-from .posture import FitParams, estimate_posture, fit_section  # noqa: E402
+from .posture.fit import FitParams, estimate_posture, fit_section  # noqa: E402
 
 __all__ += ["Cloud", "read_cloud", "FitParams", "estimate_posture", "fit_section"]

@@ -25,7 +25,7 @@ def register(sub) -> None:
 
 def run(args) -> int:
     from .cloud import read_cloud
-    from .posture import FitParams, estimate_posture
+    from .posture.fit import FitParams, estimate_posture
 
     from bodyscan._io import check_out, write_json
 
@@ -54,7 +54,7 @@ def run(args) -> int:
     print(f"bodyscan fit: wrote {out} ({len(fit.sections)} sections; voxelize {t['voxelize']:.2f} s, "
           f"match {t['match']:.2f} s, fine {t['fine']:.2f} s)", file=sys.stderr)
     if args.preview:
-        from .fit_preview import draw_fit
+        from .posture.preview import draw_fit
 
         draw_fit(cloud.points, fit, args.preview)
         print(f"bodyscan fit: wrote {args.preview}", file=sys.stderr)

@@ -68,7 +68,7 @@ class ClusterParams:
         this times the larger of the two widths (paper silent: it says "at a joint").
     joint_plane_weight : float
         Joint rule: weight of the model's joint plane against the erosion fronts (paper silent:
-        its rule uses the neighbours only; 0 keeps that). See `recon.cluster.resolve_joints`.
+        its rule uses the neighbours only; 0 keeps that). See `recon.clustering.cluster.resolve_joints`.
         Chosen on the 21 shipped postures (`paper` scans, oracle posture; mean "truth among the
         point's sections" / spurious / bridging area fractions): 0 -> 0.945 / 0.041 / 0.0050,
         0.25 -> 0.947 / 0.041 / 0.0051, 0.5 -> 0.949 / 0.041 / 0.0049, 1 -> 0.951 / 0.041 /
@@ -88,7 +88,7 @@ class ClusterParams:
     side_joint_planes : bool
         Joint rule: at a side joint whose joint lies beside the proximal column (the shoulders),
         the plane through the joint across the distal axis also votes (chosen; paper silent; see
-        `recon.cluster.joint_plane_score`). Measured on the 21 shipped postures (oracle posture,
+        `recon.clustering.cluster.joint_plane_score`). Measured on the 21 shipped postures (oracle posture,
         ``python -m bodyscan.benchmarks.recon_table``; mean truth among labels / mean and min 1/m-scored
         accuracy): False 0.955 / 0.941 / 0.909, True 0.958 / 0.943 / 0.911, spurious 0.041 and
         bridging 0.47 % unchanged; at every side joint including the hips (whose joint lies
@@ -117,7 +117,7 @@ class ClusterParams:
         Joint plane: it is the mitre of the two axes only where the joint lies within this many
         widths of the distal section's end; where the joint lies further inside the distal
         section, the plane is the proximal section's cross-section, and vice versa (chosen; see
-        `recon.cluster.joint_plane_score`: the spine bends at the chest joint, 0.46 widths above
+        `recon.clustering.cluster.joint_plane_score`: the spine bends at the chest joint, 0.46 widths above
         the chest section's lower end, and the body below the bend follows the waist). Measured on
         the 21 shipped postures (oracle posture, ``python -m bodyscan.benchmarks.recon_table``; mean truth
         among labels / min 1/m-scored accuracy): always the mitre (inf, before) 0.952 / 0.895,
@@ -126,7 +126,7 @@ class ClusterParams:
     joint_plane_bones : bool
         Joint plane at the end joints (chest, neck, elbows, knees): the bones' directions from the
         fit's joints instead of the columns' axes (paper silent; see
-        `recon.cluster.joint_plane_score`). The body file's sections change where the skinning
+        `recon.clustering.cluster.joint_plane_score`). The body file's sections change where the skinning
         changes bones; the estimated waist's column stands more upright than the lumbar spine (the
         chest joint lies behind the pelvis joint), and its plane cut the front of the chest too
         low: truth waist labelled chest at the front, truth chest labelled waist at the back.
@@ -138,20 +138,20 @@ class ClusterParams:
     side_plane_tilt : float
         The shoulders' plane (``side_joint_planes``), the arm's cross-section through the joint,
         is tilted toward the body's midline by this (the tangent of the tilt; paper silent; see
-        `recon.cluster.joint_plane_score`): the body file's upper arm includes the deltoid, which
+        `recon.clustering.cluster.joint_plane_score`): the body file's upper arm includes the deltoid, which
         caps the joint from outside, and its chest reaches below the joint on the armpit's side.
         Chosen on the 13 average_male postures (`paper` scans, the clustering alone on the same
         fits; mean truth among labels, oracle / estimated posture): 0 -> 0.9674 / 0.9533; 0.4 ->
         0.9689 / 0.9538; 0.5 -> 0.9691 / 0.9539; 0.7 -> 0.9694 / 0.9540; 1 -> 0.9697 / 0.9543;
         1.5 -> 0.9698 / 0.9543; 2 -> 0.9698 / 0.9542; 3 -> 0.9697 / 0.9537; through a point 0.1
         arm widths above or below the joint instead, at 0.6: 0.9692 / 0.9537, 0.9685 / 0.9541.
-        (This sweep without the guard of `recon.cluster._tilt_to_midline` against arms along the
+        (This sweep without the guard of `recon.clustering.cluster._tilt_to_midline` against arms along the
         shoulder line; with it, at 1: 0.9700 / 0.9546.) The other 8 postures (not used to
         choose), 0 -> 1: 0.9716 -> 0.9726 / 0.9543 -> 0.9555.
     claim_across_joints : float
         A point claimed by one section alone, inside the column of an adjacent section and on that
         section's side of their joint plane (within this many widths of the distal section), goes
-        to the adjacent section (paper silent; 0: off; see `recon.cluster.claim_across_joints`).
+        to the adjacent section (paper silent; 0: off; see `recon.clustering.cluster.claim_across_joints`).
         The T_d shell misses the body where it lies deeper than T_d inside a column near a joint:
         the base of the neck and the trapezius inside the chest's column are claimed by the head
         alone (truth chest, labelled head: 0.3-0.7 % of the points of every adult body, oracle
@@ -162,9 +162,9 @@ class ClusterParams:
         after the joint rule instead of before it (their fronts unchanged) gained less: 0.9655 /
         0.9514. Only at the neck: 0.9652 / 0.9510; only at the knees: 0.9627 / 0.9509.
     hip_planes : bool
-        With the hips flexed (no crotch found along the thighs, `recon.joints.find_crotch`), the
+        With the hips flexed (no crotch found along the thighs, `recon.posture.joints.find_crotch`), the
         joint rule's plane at the hips is the groin's crease (paper silent; see
-        `recon.cluster.joint_plane_score` and `recon.cluster.flexed_hip_plane`): the mitre of the
+        `recon.clustering.cluster.joint_plane_score` and `recon.clustering.cluster.flexed_hip_plane`): the mitre of the
         waist's downward axis and the thigh's axis, tilted out by ``hip_plane_tilt``,
         ``hip_plane_offset`` thigh widths past the hip joint. Before (False), a flexed hip whose
         joint lay within the waist's length got the shoulders' plane, the thigh's cross-section
@@ -191,7 +191,7 @@ class ClusterParams:
     max_rounds : int
         Rounds of the three-or-more rule, of the two-section rule and of label adoption before
         the remaining points are settled by their distance to the model (paper silent; the joint
-        rule is solved exactly, see `recon.cluster.resolve_joints`).
+        rule is solved exactly, see `recon.clustering.cluster.resolve_joints`).
     adopt_unlabeled : bool
         Points left in no section after refinement take the sections of their nearest labelled
         neighbour within the neighbour radius (paper silent; it leaves them out).
@@ -317,7 +317,7 @@ class SurfaceParams:
         A triangle folds against its chart when its 3D normal, with the vertex order that is
         counter-clockwise in the chart, has a cosine below ``fold_cos`` with the chart's
         projection direction (the column's radial direction, the cap's direction from its centre;
-        see `recon.surface.chart_agreement`); such a triangle whose longest 3D edge is also longer
+        see `recon.surface.mesh.chart_agreement`); such a triangle whose longest 3D edge is also longer
         than ``fold_edge_factor`` median spacings is removed (paper: none; ``fold_cos = -1``
         switches it off; ``proposed`` only: ``simple`` keeps the paper's surface, as for the
         inner triangles; applied to ``simple`` too it lowered simple's mean spurious fraction
@@ -345,7 +345,7 @@ class SurfaceParams:
         measured along a ray from its camera (``view_dir``), so a triangle that such a ray crosses
         in front of a point lying more than ``carve_margin`` median spacings behind the triangle's
         plane is air, not surface, and is removed (``proposed`` only; see
-        `recon.surface.seen_through`). Only triangles with an edge longer than ``carve_min_edge``
+        `recon.surface.mesh.seen_through`). Only triangles with an edge longer than ``carve_min_edge``
         spacings are tested, against the points within their circumradius plus ``carve_reach``
         spacings of their centroid. It removes the flaps across armpits, crotch, curled fingers and
         under the chin where the sensor looked through them, but not the cover of a hole that no
@@ -372,7 +372,7 @@ class SurfaceParams:
         a point is measured only where the surface faces its camera, so a triangle of real
         surface faces the camera of each of its vertices, up to the surface's turn across the
         triangle. A triangle that, turned either way, has a cosine below ``facing_cos`` with the
-        viewing direction of one of its vertices (`recon.surface.view_consistency`) joins points
+        viewing direction of one of its vertices (`recon.surface.mesh.view_consistency`) joins points
         seen from opposite sides across a gap (a forearm beside the hip, touching thighs, across
         an armpit) and is removed when its longest edge is also longer than ``facing_min_edge``
         spacings (shorter ones turn around a thin part's rim: fingers, silhouettes; a convex
@@ -401,7 +401,7 @@ class SurfaceParams:
         paper's hole covering, kept). A triangle whose centroid stands more than
         ``concave_height`` spacings in front of the tangent plane at every one of its vertices,
         or more than ``concave_mean_height`` in front of them on average
-        (`recon.surface.over_concavity`; normals from `recon.surface.point_normals`, turned
+        (`recon.surface.mesh.over_concavity`; normals from `recon.surface.mesh.point_normals`, turned
         toward the cameras), bridges a concavity: the flat cover over a hole in concave surface
         (under the chin, behind the ears, the armpit, the thumb web) or surface across a gap; it
         is removed when its longest edge is also longer than ``concave_min_edge`` spacings.
@@ -481,7 +481,7 @@ class SurfaceParams:
         "unit": "m", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
-                "charts of their own joined to their section (recon.complete; False: the paper)",
+                "charts of their own joined to their section (recon.surface.complete; False: the paper)",
         "unit": "", "range": (False, True)})
     far_link: float = field(default=2.5, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
@@ -493,7 +493,7 @@ class SurfaceParams:
         "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     close_voxel: float = field(default=0.008, metadata={
-        "help": "proposed-closed: grid step of the closed surface (recon.complete.closed_surface)",
+        "help": "proposed-closed: grid step of the closed surface (recon.surface.complete.closed_surface)",
         "unit": "m", "range": (0.001, 0.05)})
     close_cell: float = field(default=1.5, metadata={
         "help": "proposed-closed: cell size of the sections' radial height fields",
@@ -532,7 +532,7 @@ class SurfaceParams:
 class CleanParams:
     """Real scanner conditions (beyond the paper, whose clouds were noise-free): outlier
     rejection before the fit, registration between heads, and a denoised surface
-    (`recon.denoise`, `recon.register`). ``outlier_z=0 denoise=False register_heads=False`` gives
+    (`recon.clean.denoise`, `recon.clean.register`). ``outlier_z=0 denoise=False register_heads=False`` gives
     the paper's input. The simple baseline is never denoised (it keeps the paper's surface).
     """
 
@@ -602,7 +602,7 @@ class FitParams:
         metadata={"help": "1 = when an upper arm and a leg of one side both land in empty voxels, also place the arms first and keep the better", "unit": "", "range": (0, 1)})
     #   empty voxels (below `match_min_section_score`), the sections are placed again with the arms before the
     #   legs and that placement kept when it explains more points and the side's leg scores no lower on the
-    #   volume (a leg scoring lower gave its voxels to the arm) (`recon.match._place_body`): the leg, placed first,
+    #   volume (a leg scoring lower gave its voxels to the arm) (`recon.posture.match._place_body`): the leg, placed first,
     #   took the arm's voxels (squat k3: the thigh rose onto the forearm resting over the knee, score -0.26, and
     #   the upper arm was sent backwards into empty voxels, -0.30; arms first: ua_l fitted). 0 = legs first only
     #   (chosen: both in empty voxels means one of them is misplaced; the points decide, as between torsos)
@@ -673,7 +673,7 @@ class FitParams:
         metadata={"help": "the torso slides at most this far to hang from the crown", "unit": "m", "range": (0, 2)})
     match_crown_on_trunk: int = field(default=1,  # 2.3(1): 1 = when the head finds no crown on its own axis, the crown is sought
         metadata={"help": "1 = seek the crown on the trunk's axis when the head finds none on its own", "unit": "", "range": (0, 1)})
-                                           # on the trunk's axis (`recon.match._crown_on_trunk`: the head sits on the
+                                           # on the trunk's axis (`recon.posture.match._crown_on_trunk`: the head sits on the
                                            # trunk; a torso matched too high leaves its head leaning onto nothing) and
                                            # the torso slid down to it when that explains more points. Measured at
                                            # 10 mm: seated k1_rot137 5.0 / 13.1 -> 2.5 / 6.5 cm, child_arms_raised
@@ -695,9 +695,9 @@ class FitParams:
     match_leg_trunk_min: float = field(default=0.8,  # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
         metadata={"help": "leg chains shorter than this times the trunk are legs cut from the scan (0 = off)", "unit": "", "range": (0, 10)})
                                            # less than this times the trunk (crown to the crotch seen in the points,
-                                           # over `recon.match.CROWN_CROTCH` statures) are not whole legs (cut from the
+                                           # over `recon.posture.match.CROWN_CROTCH` statures) are not whole legs (cut from the
                                            # scan): the trunk sizes the body and the lower legs are listed
-                                           # (`recon.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
+                                           # (`recon.posture.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
                                            # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
                                            # (0 = off; chosen)
     match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
@@ -758,7 +758,7 @@ class FitParams:
                                            #   when they stayed, the doubt cover by the same ratio)
     reach_candidates: int = field(default=60,  # 2.3(2): an arm listed unfitted is searched again as a chain from its
         metadata={"help": "arm search (reach): an unfitted arm is searched again from its shoulder; upper-arm directions kept", "unit": "", "range": (1, 10000)})
-    reach_min_hand_points: int = field(default=10,  #   shoulder on the points no other section explains (`recon.reach`):
+    reach_min_hand_points: int = field(default=10,  #   shoulder on the points no other section explains (`recon.posture.reach`):
         metadata={"help": "arm search (reach): points needed at the hand end of a found forearm", "unit": "", "range": (0, None)})
     reach_hand_fraction: float = field(default=0.3,  #   upper-arm directions kept for the forearm's search; points needed at
         metadata={"help": "arm search (reach): the hand end is the last this fraction of the forearm", "unit": "", "range": (0, 1)})
@@ -835,10 +835,10 @@ class FitParams:
                                            # matched at 1.20 m 6.9 -> under 4.8; 0 (always) gave median 2.2 (chosen)
     fit_facing: int = field(default=4,  # 2.1: fit the cloud turned about the vertical to a facing read from its own
         metadata={"help": "fit the cloud turned to its own facing, retried in 360/this degree steps (0 = as it lies)", "unit": "", "range": (0, 36)})
-                                           # shape (`recon.posture.facing_frame`), so that a scan turned about the
+                                           # shape (`recon.posture.fit.facing_frame`), so that a scan turned about the
                                            # vertical gets the same fit, turned; when refused or with fit_facing_retry
                                            # sections unfitted, also turned further in 360 / fit_facing degree steps,
-                                           # the best fit kept (`recon.posture._fit_facings`); 0 = fit the cloud as it
+                                           # the best fit kept (`recon.posture.fit._fit_facings`); 0 = fit the cloud as it
                                            # lies (chosen; measured in the module docstring of recon.posture)
     fit_facing_retry: int = field(default=3,  # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
         metadata={"help": "this many sections unfitted: try the other facings too", "unit": "", "range": (0, 11)})
@@ -899,7 +899,7 @@ class FitParams:
 #: concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
 #: size estimate, no alternatives. Kept, being steps without which nothing works, and the same
 #: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
-#: itself (``recon.match``, whose voxel score is paper 2.3).
+#: itself (``recon.posture.match``, whose voxel score is paper 2.3).
 PAPER = {
     # clustering (paper 3.1-3.2)
     "joint_plane_weight": 0.0, "side_joint_planes": False, "joint_plane_bones": False,

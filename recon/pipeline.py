@@ -51,7 +51,7 @@ class Reconstruction:
         How far each vertex lies from its input point (registration and denoising), metres.
     outliers : (n,) bool or None
         Points rejected as outliers (before the fit, and in the charts): in no section, no face.
-    registration : recon.register.Registration or None
+    registration : recon.clean.register.Registration or None
         The correction applied to each head (``register_heads``).
     """
 
@@ -195,7 +195,7 @@ class Prepared:
     view_dir : (n, 3) or (3,) float or None
     keep : (n,) bool
         Points that are not outliers.
-    registration : recon.register.Registration or None
+    registration : recon.clean.register.Registration or None
     """
 
     points: np.ndarray
@@ -227,7 +227,7 @@ def prepare(points: np.ndarray, params: ReconParams, view_dir=None, head=None) -
 def _prepare(points, params, view_dir, head) -> Prepared:
     from scipy.spatial import cKDTree
 
-    from .surface import median_spacing
+    from .surface.mesh import median_spacing
 
     c = params.clean
     keep = np.ones(len(points), dtype=bool)
@@ -236,12 +236,12 @@ def _prepare(points, params, view_dir, head) -> Prepared:
         tree = cKDTree(points)
         spacing = median_spacing(points, tree=tree)
         if c.outlier_z > 0:
-            from .denoise import reject_outliers
+            from .clean.denoise import reject_outliers
 
             keep = ~reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z, c.outlier_floor,
                                     c.outlier_isolation, tree=tree, workers=params.surface.workers)[0]
         if c.register_heads and head is not None:
-            from .register import register_heads
+            from .clean.register import register_heads
 
             reg = register_heads(points[keep], head[keep], spacing)
             points, view_dir = reg.apply(points, head, view_dir)
@@ -272,7 +272,7 @@ def _subset(view_dir, keep):
 
 def _estimate(points, params: ReconParams, view_dir=None) -> BodyFit:
     try:
-        from .posture import estimate_posture
+        from .posture.fit import estimate_posture
     except ImportError:
         raise ReconError("posture estimation (recon.posture) is not available in this build; "
                          "pass a fitted model with fit= (or --fit FIT.json)") from None
@@ -292,7 +292,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     method : {"proposed", "proposed-closed", "paper", "simple"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
         ``proposed-closed`` (beyond the paper): ``proposed`` with the unseen surface closed
-        (`recon.complete.closed_surface`): watertight, its vertices new (after the input points,
+        (`recon.surface.complete.closed_surface`): watertight, its vertices new (after the input points,
         which it leaves in no face); ``paper``: the same steps with every rule of ours off
         (`recon.params.PAPER`), the paper's method as itself; ``simple``: the paper's baseline,
         T_d threshold only.
@@ -314,8 +314,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     ReconError
         Unusable points, method or parameters, or nothing could be reconstructed.
     """
-    from .cluster import cluster_points, section_coordinates
-    from .surface import reconstruct_surfaces
+    from .clustering.cluster import cluster_points, section_coordinates
+    from .surface.mesh import reconstruct_surfaces
 
     t_start = time.perf_counter()
     if method not in METHODS:
@@ -351,7 +351,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     t0 = time.perf_counter()
     from scipy.spatial import cKDTree
 
-    from .surface import median_spacing
+    from .surface.mesh import median_spacing
 
     tree = cKDTree(p)
     member = cluster_points(p, fit, steps, params.cluster, coords=coords, tree=tree)
@@ -360,12 +360,12 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     meshed, extra = member, []
     spacing = median_spacing(p, tree=tree)
     if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
-        from .cluster import section_widths, simple_clustering
+        from .clustering.cluster import section_widths, simple_clustering
 
         far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
         meshed = member & ~far[:, None]
         if params.surface.far_charts and steps != "simple":  # ... or on charts of their own
-            from .complete import far_charts
+            from .surface.complete import far_charts
 
             sp = params.surface
             extra = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link,
@@ -373,8 +373,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)
-    if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.denoise)
-        from .denoise import denoise
+    if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.clean.denoise)
+        from .clean.denoise import denoise
 
         t0 = time.perf_counter()
         c = params.clean
@@ -395,7 +395,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     if len(faces) == 0:
         raise ReconError(f"no surface could be made from {len(p)} points: no section had enough "
                          "clustered points (is the fitted model placed on the cloud?)")
-    from .complete import unmeshed_count
+    from .surface.complete import unmeshed_count
 
     vertices = prep.points.copy()
     vertices[keep] = mesh_points
@@ -403,7 +403,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     faces = keep[faces]
     unmeshed = unmeshed_count(len(raw), faces)
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
-        from .complete import closed_surface
+        from .surface.complete import closed_surface
 
         t0 = time.perf_counter()
         sp = params.surface

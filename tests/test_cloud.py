@@ -112,7 +112,7 @@ def test_missing_file_and_unknown_type(tmp_path):
 
 def test_recon_never_names_ground_truth_fields():
     pattern = re.compile(r"gt_(face|section|normal)")
-    offenders = [p.name for p in (ROOT / "recon").glob("*.py") if pattern.search(p.read_text())]
+    offenders = [p.name for p in (ROOT / "recon").rglob("*.py") if pattern.search(p.read_text())]
     assert offenders == []
 
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from bodyscan.recon import ReconError
-from bodyscan.recon import cluster as C
+from bodyscan.recon.clustering import cluster as C
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.params import ClusterParams, ReconParams
 

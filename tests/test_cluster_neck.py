@@ -1,8 +1,8 @@
-"""`recon.joints.centre_neck`: the reported chest's top midway between the sides of the neck."""
+"""`recon.posture.joints.centre_neck`: the reported chest's top midway between the sides of the neck."""
 
 import numpy as np
 
-from bodyscan.recon.joints import NECK_SLAB, centre_neck
+from bodyscan.recon.posture.joints import NECK_SLAB, centre_neck
 from bodyscan.recon.model import SectionShape
 
 

@@ -1,4 +1,4 @@
-"""The reported sections (`recon.joints`): where they start and how thick they are, against the
+"""The reported sections (`recon.posture.joints`): where they start and how thick they are, against the
 ground truth's labels."""
 
 import warnings
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from bodyscan.recon import estimate_posture
-from bodyscan.recon.bodymodel import SHOULDER_CAP, UPPER_ARM_SHAPE
-from bodyscan.recon.joints import joint_caps, shape_limbs
+from bodyscan.recon.posture.bodymodel import SHOULDER_CAP, UPPER_ARM_SHAPE
+from bodyscan.recon.posture.joints import joint_caps, shape_limbs
 from bodyscan.recon.model import SECTIONS, SectionShape
 
 X, Y, Z = np.eye(3)
@@ -109,7 +109,7 @@ def test_reported_lower_leg_reaches_the_labelled_calf(limb_scans):
     than the fitted round one did (the foot, in the lower leg's labels, stays out of reach: measured
     0.50-0.91 -> 0.63-0.93, mean gain 0.086), while the thigh's points it reaches grow by less
     than 4 % of them (measured 0.4-0.8 % standing and arms_close, 2.9-3.6 % seated: its deeply bent
-    knees, on the lower leg's axis since `recon.joints.bent_knee`, start the lower legs nearer the
+    knees, on the lower leg's axis since `recon.posture.joints.bent_knee`, start the lower legs nearer the
     thigh's underside; seated's section accuracy rose 0.956 -> 0.964 with that change)."""
     gains = []
     for name, (p, gt, fit, oracle) in limb_scans.items():

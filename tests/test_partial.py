@@ -9,9 +9,9 @@ import pytest
 
 from bodyscan.benchmarks.fit_table import rot_z, score_fit
 from bodyscan.recon import FitParams, estimate_posture
-from bodyscan.recon.bodymodel import StandardBody
+from bodyscan.recon.posture.bodymodel import StandardBody
 from bodyscan.recon.model import SECTIONS, SectionShape
-from bodyscan.recon.posture import _on_trunk
+from bodyscan.recon.posture.fit import _on_trunk
 
 
 def _cut_scan(name, cut, turn=0.0):
@@ -76,16 +76,16 @@ def _trunk_and_arm(offset):
 @pytest.mark.parametrize("offset, on", [(-0.02, True), (0.0, True), (0.015, True), (0.05, False), (0.08, False)])
 def test_a_forearm_on_the_trunks_surface_is_not_an_arm(offset, on):
     """An arm's axis keeps about a radius outside the skin; one on or in the trunk's surface is the
-    trunk's own surface (`recon.posture._on_trunk`)."""
+    trunk's own surface (`recon.posture.fit._on_trunk`)."""
     body, secs = _trunk_and_arm(offset)
     assert _on_trunk("forearm_l", secs, body, FitParams()) is on
     assert _on_trunk("chest", secs, body, FitParams()) is False
 
 
 def test_points_on_another_sections_surface_are_shared():
-    """`recon.reach._shared_fraction`: a limb explains points no other section explains; points of
+    """`recon.posture.reach._shared_fraction`: a limb explains points no other section explains; points of
     the chest's surface under a forearm laid on it are shared, points around a free forearm are not."""
-    from bodyscan.recon.reach import _shared_fraction
+    from bodyscan.recon.posture.reach import _shared_fraction
 
     body, secs = _trunk_and_arm(0.0)
     on_chest = secs["chest"].surface_points(48, 20)
@@ -101,9 +101,9 @@ def test_points_on_another_sections_surface_are_shared():
 @pytest.mark.parametrize("name", ["walking", "standing", "t_pose", "arms_forward"])
 def test_cut_lower_legs_are_listed_and_the_rest_is_near_the_truth(name):
     """Both lower legs cut from the scan: the body is sized from its trunk (crown to crotch: the leg
-    chains measure 0.55-0.73 of it, `recon.match.size_ratios`), the lower legs are listed (walking:
+    chains measure 0.55-0.73 of it, `recon.posture.match.size_ratios`), the lower legs are listed (walking:
     one was placed across to the other thigh's stump), front and back come from the head and chest
-    (`recon.joints._trunk_vote`). Before: walking sized 1.22 m (true 1.71), median 11.9 / max 44.8
+    (`recon.posture.joints._trunk_vote`). Before: walking sized 1.22 m (true 1.71), median 11.9 / max 44.8
     cm; standing, t_pose, arms_forward flipped front to back (wrists 52-145 cm off)."""
     cut = ("lower_leg_l", "lower_leg_r")
     fit, err = _fit_cut(name, cut)
@@ -143,9 +143,9 @@ def _head_and_chest(nose: bool):
 
 @pytest.mark.parametrize("turn", [0.0, 180.0])
 def test_the_trunk_says_where_the_front_is(turn):
-    """`recon.joints.front_sign` without legs: the head and chest stick out in front (`_trunk_vote`);
+    """`recon.posture.joints.front_sign` without legs: the head and chest stick out in front (`_trunk_vote`);
     the body faces -y, and turned 180 degrees +y; symmetric sections give no vote."""
-    from bodyscan.recon.joints import _trunk_vote, front_sign
+    from bodyscan.recon.posture.joints import _trunk_vote, front_sign
 
     pts, secs = _head_and_chest(nose=True)
     R = rot_z(turn)
@@ -161,7 +161,7 @@ def test_the_trunk_says_where_the_front_is(turn):
 def test_one_cut_lower_leg_of_a_walker_is_listed():
     """walking without its left lower leg: the coarse lower leg (in empty voxels) was fitted across
     onto the right knee and kept as a leg seen on its surface, ankle_l 73.6 cm off, nothing listed;
-    a leg chain running across the body is listed (`recon.posture._leg_across`)."""
+    a leg chain running across the body is listed (`recon.posture.fit._leg_across`)."""
     cut = ("lower_leg_l",)
     fit, err = _fit_cut("walking", cut)
     assert set(cut) <= set(fit.unfitted)
@@ -170,10 +170,10 @@ def test_one_cut_lower_leg_of_a_walker_is_listed():
 
 @pytest.mark.parametrize("foot_x, across", [(0.10, False), (0.0, False), (-0.05, False), (-0.25, True)])
 def test_a_leg_chain_running_across_the_body_is_found(foot_x, across):
-    """`recon.posture._leg_across`: hips at x = +-0.09 m, the left thigh straight down 0.42 m, the
+    """`recon.posture.fit._leg_across`: hips at x = +-0.09 m, the left thigh straight down 0.42 m, the
     left sole at ``foot_x``: a chain ending 0.34 m toward the other hip over 0.92 m of length is more
     than `match_max_adduction` (0.25) across; a leg held in or out a little is not."""
-    from bodyscan.recon.posture import _leg_across
+    from bodyscan.recon.posture.fit import _leg_across
 
     def col(name, a, b):
         return SectionShape(name, np.array(a, float), np.array(b, float), [0.06, 0.06], [1.0, 0, 0])

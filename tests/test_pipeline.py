@@ -7,7 +7,7 @@ import pytest
 
 from bodyscan.recon import ReconError, ReconParams, reconstruct
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
-from bodyscan.recon.surface import model_outward
+from bodyscan.recon.surface.mesh import model_outward
 
 X = np.array([1.0, 0, 0])
 ARMS = [SECTIONS.index(s) for s in ("upper_arm_l", "upper_arm_r", "forearm_l", "forearm_r")]

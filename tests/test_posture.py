@@ -89,7 +89,7 @@ def test_params_from_strings():
 def test_knee_closes_the_leg_triangle():
     """The knee from hip, ankle and the bend of the axes: exact on a bent leg, whichever way the
     hinge turns, and on a straight leg at the thigh's share of hip to ankle."""
-    from bodyscan.recon.joints import knee_between
+    from bodyscan.recon.posture.joints import knee_between
 
     back, left = np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0])
     hip = np.array([0.1, 0.0, 0.9])
@@ -114,9 +114,9 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     knee, as on the squat scans: bend 108 degrees) moves the triangle's knee (`knee_between`) 6.3 cm,
     the knee on the lower leg's axis, between where the thigh's axis crosses it and a shank above the
     ankle, 1.6 cm; `place_joints` uses it beyond `KNEE_MEET_DEG`."""
-    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.posture.bodymodel import standard_body
     from bodyscan.recon.geometry import unit
-    from bodyscan.recon.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
+    from bodyscan.recon.posture.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
 
     x = np.array([1.0, 0.0, 0.0])
     hip, knee, ankle = np.array([0.12, 0.0, 0.47]), np.array([0.17, -0.40, 0.44]), np.array([0.26, -0.15, 0.08])
@@ -149,8 +149,8 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
 def test_crown_anchor_keeps_a_level_thigh_on_its_line():
     """Sliding the model along the torso axis to hang from the crown moves a level thigh (seated,
     knee raised) only along itself: moved across itself it would leave its points."""
-    from bodyscan.recon.bodymodel import standard_body
-    from bodyscan.recon.adjust import anchor_on_head_top
+    from bodyscan.recon.posture.bodymodel import standard_body
+    from bodyscan.recon.posture.adjust import anchor_on_head_top
 
     x = [1.0, 0.0, 0.0]
     secs = {
@@ -171,8 +171,8 @@ def test_doubted_forearm_is_found_again_on_the_points():
     """A forearm held across the chest, matched pointing down into the belly (its fit doubted: poor
     cover, 3 cm rms), is searched again from the elbow on the points: the new axis follows the true
     forearm; a forearm the check does not doubt is left alone."""
-    from bodyscan.recon.adjust import research_forearms
-    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.posture.adjust import research_forearms
+    from bodyscan.recon.posture.bodymodel import standard_body
 
     body = standard_body(1.75)
     x = [1.0, 0.0, 0.0]
@@ -389,7 +389,7 @@ def test_facing_frame_turns_the_shoulders_across_and_the_front_to_minus_y():
     """An analytic body: a torso column 0.40 m wide, 0.24 m deep, shoulders a 0.50 m wide slab,
     and a block in front (feet, arms forward) at +x turned by 40 degrees: the frame turns the wide
     direction to x and the front to -y, from any starting turn; R is a rotation about +z."""
-    from bodyscan.recon.posture import facing_frame
+    from bodyscan.recon.posture.fit import facing_frame
 
     def box(x, y, z, n):   # a grid filling [x0, x1] x [y0, y1] x [z0, z1], symmetric about its centre
         return np.stack(np.meshgrid(*(np.linspace(*r, m) for r, m in zip((x, y, z), n))), -1).reshape(-1, 3)
@@ -523,7 +523,7 @@ def test_standing_at_20mm_meets_the_issue_targets(k):
 def _seated_chain(H, pelvis, thigh_dir):
     """Sections of a body of stature ``H`` sat with its torso upright: head, thighs along
     ``thigh_dir``, shins down (the model's proportions), arms hanging; its pelvis at ``pelvis``."""
-    from bodyscan.recon.bodymodel import standard_body
+    from bodyscan.recon.posture.bodymodel import standard_body
 
     b = standard_body(H)
     x, up, down = np.array([1.0, 0, 0]), np.array([0, 0, 1.0]), np.array([0, 0, -1.0])
@@ -549,7 +549,7 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
     1.75 m body, standing or seated (thighs level, knees bent 90 degrees): on a bent knee the
     model's thigh, not the points, sets where the shin hangs, so its length is not measured and is
     taken out of the ratio (uncorrected, a seated 1.75 m body measured 1.67 m from a 1.50 m match)."""
-    from bodyscan.recon.match import Pose, size_ratios, torso_len
+    from bodyscan.recon.posture.match import Pose, size_ratios, torso_len
 
     d = np.array(thigh)
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), d)
@@ -565,7 +565,7 @@ def test_size_from_crown_to_sole_whatever_the_knees_bend(thigh):
 def test_a_hand_over_the_head_is_not_the_crown():
     """A forearm raised over the head (its hand in line with the head's axis) does not lengthen the
     crown to sole measure: points nearer a placed forearm than the head are not the crown."""
-    from bodyscan.recon.match import Pose, size_ratios, torso_len
+    from bodyscan.recon.posture.match import Pose, size_ratios, torso_len
 
     down = np.array([0.0, 0.0, -1.0])
     _, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), down)
@@ -582,7 +582,7 @@ def test_a_hand_over_the_head_is_not_the_crown():
 def test_a_head_in_the_scan_is_seen_above_the_neck():
     """`_head_seen`: a head's surface points above the chest's top end are seen; with the head cut
     from the scan, or with the chest placed a head length too high (its top above the crown), none."""
-    from bodyscan.recon.posture import _head_seen
+    from bodyscan.recon.posture.fit import _head_seen
 
     body, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0]))
     up = np.array([0.0, 0.0, 1.0])
@@ -601,7 +601,7 @@ def test_the_crown_on_the_trunk_axis_of_a_torso_placed_too_high(off):
     """`_crown_on_trunk`: with the chest placed 0.15 m too high (its head would lean into the air),
     the crown found on the trunk's axis says how far down the neck belongs (within 1 cm), also with
     the head carried ``off`` metres forward of that axis; with no head in the scan, None."""
-    from bodyscan.recon.match import _crown_on_trunk
+    from bodyscan.recon.posture.match import _crown_on_trunk
 
     body, truth = _seated_chain(1.75, np.array([0.0, 0.0, 1.0]), np.array([0.0, 0.0, -1.0]))
     up = np.array([0.0, 0.0, 1.0])
@@ -622,7 +622,7 @@ def test_elbow_between_closes_the_arm_at_the_bone_proportion(bend):
     """`elbow_between`: an arm of upper arm 0.27 m and forearm 0.25 m bent ``bend`` degrees, from
     its shoulder and wrist and the two bones' directions, gives back its elbow (within 1 mm), at any
     overall size (the model's lengths are not used, only their proportion)."""
-    from bodyscan.recon.joints import elbow_between
+    from bodyscan.recon.posture.joints import elbow_between
 
     for scale in (0.8, 1.0):
         u, f = 0.27 * scale, 0.25 * scale
@@ -639,8 +639,8 @@ def test_elbow_between_closes_the_arm_at_the_bone_proportion(bend):
 def test_a_torso_deeper_than_wide_is_not_a_fit():
     """A waist deeper than wide means the fit took the body's front for its side (a walker's stride
     read as legs spread apart): the candidate is rejected, so another is tried or the cloud refused."""
-    from bodyscan.recon.bodymodel import standard_body
-    from bodyscan.recon.posture import _check_plausible
+    from bodyscan.recon.posture.bodymodel import standard_body
+    from bodyscan.recon.posture.fit import _check_plausible
 
     x = np.array([1.0, 0, 0])
     chest = SectionShape("chest", np.array([0, 0, 1.3]), np.array([0, 0, 1.6]), np.array([0.16, 0.11]), x)
@@ -656,8 +656,8 @@ def test_a_torso_deeper_than_wide_is_not_a_fit():
 def test_a_leg_far_longer_than_the_body_size_is_not_a_fit():
     """The sole (the farthest points along the shin) 1.9 standard shanks below the knee: the body's size
     was misjudged; at the standard length the fit stands."""
-    from bodyscan.recon.bodymodel import standard_body
-    from bodyscan.recon.posture import _check_leg_length
+    from bodyscan.recon.posture.bodymodel import standard_body
+    from bodyscan.recon.posture.fit import _check_leg_length
 
     body = standard_body(1.75)
     knee = np.array([0.1, 0, 0.5])
@@ -674,7 +674,7 @@ def test_a_leg_far_longer_than_the_body_size_is_not_a_fit():
 
 
 def test_a_tilted_winner_brings_back_the_best_upright_torso_when_resized():
-    """`recon.match.upright_restart`: the first size is measured along the winning torso's axis; when
+    """`recon.posture.match.upright_restart`: the first size is measured along the winning torso's axis; when
     that torso is tilted (heavy_a_pose k3: 22 degrees, arms unfitted) the best upright match is
     matched again at the new size; an upright winner brings back nothing."""
     from types import SimpleNamespace as NS
@@ -685,7 +685,7 @@ def test_a_tilted_winner_brings_back_the_best_upright_torso_when_resized():
         a = np.radians(deg)
         return np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]]) @ rot_z(30)
 
-    from bodyscan.recon.match import upright_restart
+    from bodyscan.recon.posture.match import upright_restart
 
     tilted = NS(R=tilt(22), explained=0.58)
     up_a, up_b = NS(R=tilt(3), explained=0.46), NS(R=tilt(4.9), explained=0.48)
@@ -696,11 +696,11 @@ def test_a_tilted_winner_brings_back_the_best_upright_torso_when_resized():
 
 
 def test_a_roll_from_the_legs_needs_a_waist_wider_than_deep():
-    """`recon.match.waist_wider_than_deep`: the stride's roll of tall_walking k2 measured its waist
+    """`recon.posture.match.waist_wider_than_deep`: the stride's roll of tall_walking k2 measured its waist
     0.26 m wide and 0.30 deep (refused before the rule); the right roll 0.32 x 0.28."""
     from types import SimpleNamespace as NS
 
-    from bodyscan.recon.match import waist_wider_than_deep
+    from bodyscan.recon.posture.match import waist_wider_than_deep
 
     def waist(wide, deep):
         return NS(radii=np.array([wide, deep]))
@@ -780,7 +780,7 @@ def test_a_body_turned_in_the_scanner_is_fitted_in_the_facing_that_explains_it()
         pytest.skip("library postures missing")
     from bodyscan import poses
     from bodyscan import simulator
-    from bodyscan.recon.match import explained_fraction
+    from bodyscan.recon.posture.match import explained_fraction
 
     row = run_one(poses.load_body("heavy_standing"), "k1_turn30", 0.01)
     assert row["outcome"] == "pass", row
@@ -806,7 +806,7 @@ def test_library_fits_meet_the_issue_targets(library_table):
     """Issue 4 on every run of the library: median joint error <= 4 cm, every joint <= 10 cm, every
     limb within 20 degrees of its bone; a run with a section listed unfitted counts only when the scan
     misses that section (`benchmarks.fit_table.SEEN`). Measured: 84 of 84 (squat k2 met since the
-    deeply bent knee lies on the lower leg's axis, `recon.joints.bent_knee`; tall_walking k3 since
+    deeply bent knee lies on the lower leg's axis, `recon.posture.joints.bent_knee`; tall_walking k3 since
     the body is matched at both sizes when its legs and crown to sole disagree, `match_size_both`)."""
     missed = [(r["body"], r["condition"], r["outcome"]) for r in library_table
               if r["outcome"] not in ("pass", "part")]
@@ -872,7 +872,7 @@ def _crotch_scene(crotch_z=0.80, spacing=0.01):
 
 def test_find_crotch_between_legs_apart():
     """The crotch is the lowest point of the mid-plane strip between the legs: the torso's bottom."""
-    from bodyscan.recon.joints import find_crotch
+    from bodyscan.recon.posture.joints import find_crotch
 
     points, secs = _crotch_scene(0.80)
     c = find_crotch(points, secs)
@@ -882,8 +882,8 @@ def test_find_crotch_between_legs_apart():
 def test_split_hips_lowers_thighs_to_the_crotch():
     """Thighs fitted 15 cm above the crotch start CROTCH_SPLIT thigh lengths above it; a thigh
     already starting lower, and flexed hips (no crotch sought along the thighs), are left alone."""
-    from bodyscan.recon.bodymodel import CROTCH_SPLIT
-    from bodyscan.recon.joints import split_hips
+    from bodyscan.recon.posture.bodymodel import CROTCH_SPLIT
+    from bodyscan.recon.posture.joints import split_hips
 
     points, secs = _crotch_scene(0.80)
     out = split_hips(points, secs)
@@ -912,8 +912,8 @@ def test_split_torso_cuts_from_the_crotch_seen_or_along_the_column():
     """The reported waist and chest meet TORSO_SPLIT_CROTCH of the way from the crotch seen in the
     points to the chest joint; without a crotch (hips flexed) at TORSO_SPLIT of the waist column;
     within TORSO_SPLIT_RANGE of the column always. The chest keeps its top, the waist its bottom."""
-    from bodyscan.recon.bodymodel import TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE
-    from bodyscan.recon.joints import split_torso
+    from bodyscan.recon.posture.bodymodel import TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE
+    from bodyscan.recon.posture.joints import split_torso
 
     points, secs = _torso_scene()
     out = split_torso(points, secs)
@@ -956,7 +956,7 @@ def test_a_forearm_through_the_head_is_inside_another_section():
     """`_inside_others`: a forearm whose axis runs into the head counts as inside another section
     (the re-search drops it); the same forearm held a forearm radius beside the head, or any
     section tested against itself only, does not."""
-    from bodyscan.recon.adjust import _inside_others
+    from bodyscan.recon.posture.adjust import _inside_others
 
     x = np.array([1.0, 0, 0])
     head = SectionShape("head", [0, 0, 1.5], [0, 0, 1.75], [0.08, 0.08], x)

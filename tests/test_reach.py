@@ -1,4 +1,4 @@
-"""recon.reach: an arm the scan shows only sparsely, searched as a chain from its shoulder."""
+"""recon.posture.reach: an arm the scan shows only sparsely, searched as a chain from its shoulder."""
 
 import warnings
 
@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from bodyscan.recon import FitParams, estimate_posture
-from bodyscan.recon.bodymodel import standard_body
+from bodyscan.recon.posture.bodymodel import standard_body
 from bodyscan.recon.model import SECTIONS, SectionShape
-from bodyscan.recon.reach import reach_arms
+from bodyscan.recon.posture.reach import reach_arms
 
 X = np.array([1.0, 0.0, 0.0])
 
@@ -106,7 +106,7 @@ def _arms_forward_scan():
 
 def test_arms_forward_is_fitted_with_its_arms():
     """The shipped arms_forward scan (paper, 10 mm, k = 1): both arms fitted, each limb section within
-    20 degrees of its bone (issue 4); before `recon.reach` three arm sections were listed."""
+    20 degrees of its bone (issue 4); before `recon.posture.reach` three arm sections were listed."""
     from bodyscan.benchmarks.fit_table import score_fit
 
     body, scan = _arms_forward_scan()

@@ -2,8 +2,8 @@
 
 import numpy as np
 
-from bodyscan.recon.denoise import denoise, reject_outliers
-from bodyscan.recon.register import _log_rotation, _rotvec, register_heads
+from bodyscan.recon.clean.denoise import denoise, reject_outliers
+from bodyscan.recon.clean.register import _log_rotation, _rotvec, register_heads
 
 R = 0.05        # cylinder radius, metres
 PITCH = 0.005   # scan pitch, metres

@@ -5,7 +5,7 @@ import pytest
 
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.params import SurfaceParams
-from bodyscan.recon import surface as S
+from bodyscan.recon.surface import mesh as S
 
 
 def edge_counts(faces):
@@ -137,7 +137,7 @@ def test_small_section_is_skipped_with_a_warning():
 
 def test_delaunay_of_degenerate_charts():
     """Too few, collinear or coincident points give no triangle rather than an error."""
-    from bodyscan.recon.surface import _delaunay
+    from bodyscan.recon.surface.mesh import _delaunay
 
     assert _delaunay(np.zeros((2, 2))) is None
     assert _delaunay(np.array([[0.0, 0], [1, 1], [2, 2]])) is None   # collinear

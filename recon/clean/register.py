@@ -2,7 +2,7 @@
 
 The paper leaves the misalignment between its cameras to future work. Each head's points are
 moved rigidly onto the surface the other heads measured, where they overlap: a point of one head
-is paired with the robust quadratic surface (`recon.denoise.local_fits`) of the other heads'
+is paired with the robust quadratic surface (`recon.clean.denoise.local_fits`) of the other heads'
 points near it, where the two surfaces are alike in direction (PCA normals within
 ``normal_cos``), and the point-to-surface distances are minimised by Gauss-Newton with Tukey
 weights on the MAD scale of the residuals, the pairing distance shrinking as the fit converges.

@@ -38,9 +38,9 @@ from itertools import chain
 
 import numpy as np
 
-from .model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
-from .cluster import near_section
-from .params import SurfaceParams
+from ..model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
+from ..clustering.cluster import near_section
+from ..params import SurfaceParams
 
 TWO_PI = 2 * np.pi
 
@@ -429,8 +429,8 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
 
 def _child_end(name: str, fit: BodyFit, present) -> list:
     """Ends (0: start, 1: end) of section ``name`` where a present child section continues it
-    (an end joint: the joint lies within `recon.cluster.SIDE_JOINT` mean radii of its axis)."""
-    from .cluster import SIDE_JOINT
+    (an end joint: the joint lies within `recon.clustering.cluster.SIDE_JOINT` mean radii of its axis)."""
+    from ..clustering.cluster import SIDE_JOINT
 
     P = fit.sections[name]
     ends = []
@@ -691,7 +691,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     ----------
     points : (n, 3) float, metres
     member : (n, 11) bool
-        Section memberships from `recon.cluster.cluster_points`.
+        Section memberships from `recon.clustering.cluster.cluster_points`.
     fit : BodyFit
     params : SurfaceParams
     view_dir : (n, 3) or (3,) float, optional
@@ -708,7 +708,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         Median point spacing of ``points``, metres (default: `median_spacing`).
     extra : list of (int, (k,) int, SectionShape[, dict[, (k',) int]])
         More charts: section index, point indices, chart, changes of ``params`` for it and the
-        points two of each of its faces' corners must be (`recon.complete.far_charts`: a far
+        points two of each of its faces' corners must be (`recon.surface.complete.far_charts`: a far
         part's own points; its faces on the points it joins would overlap its section's chart's,
         edges in three faces); their faces join the section's.
 

@@ -67,7 +67,7 @@ _F = dict(
 SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.002)
 
 #: Where the chest section meets the waist section, as a fraction of the fitted waist column (pelvis
-#: joint to chest joint), when no crotch is seen (`recon.joints.split_torso`; hips flexed): the
+#: joint to chest joint), when no crotch is seen (`recon.posture.joints.split_torso`; hips flexed): the
 #: body file format labels the spine02 bone and above as chest, and its head lies below the rig's
 #: chest joint (spine01), where the model's two torso columns are joined. Along the rig's own
 #: pelvis-chest joint line the plane that best separates the labels lies at 0.625 (standing and
@@ -81,8 +81,8 @@ SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.002)
 TORSO_SPLIT = 0.65
 
 #: Where the chest section meets the waist section, as a fraction of the way from the crotch seen
-#: in the points (`recon.joints.find_crotch`) to the fitted chest joint, measured along the waist
-#: column (`recon.joints.split_torso`). The fitted pelvis joint, the column's lower end, rides with
+#: in the points (`recon.posture.joints.find_crotch`) to the fitted chest joint, measured along the waist
+#: column (`recon.posture.joints.split_torso`). The fitted pelvis joint, the column's lower end, rides with
 #: the waist and is the torso's worst-placed landmark along its axis (-3.2 to +4.2 cm against the
 #: rig's over the library, estimated posture), while the crotch is seen on the points (within -1.1
 #: to +1.9 cm of the rig's, `CROTCH_STRIP`): the cut measured from it moved its error against the
@@ -103,7 +103,7 @@ TORSO_SPLIT_RANGE = (0.5, 0.8)
 KNEE_SPLIT = 0.022
 
 #: The reported thighs start at most this many thigh lengths (hip to knee) above the crotch seen in
-#: the points, along the thigh (`recon.joints.split_hips`): the body file labels the buttocks and
+#: the points, along the thigh (`recon.posture.joints.split_hips`): the body file labels the buttocks and
 #: the groin waist down to the crotch, and thigh only from a slanted boundary above it (its topmost
 #: thigh vertex, on the hip's side, 0.16-0.18 thigh lengths above the crotch on the adult rig's
 #: upright bodies, 0.22-0.28 on heavy, child and woman bodies). (chosen) 0.12, a cross-section
@@ -124,7 +124,7 @@ CROTCH_STRIP = 0.12
 JOINT_CAP = 0.5
 
 #: The reported upper arm's cross-section radii, front to back and across, as multiples of the
-#: fitted (round) radius (`recon.joints.shape_limbs`): the upper arm is deeper front to back
+#: fitted (round) radius (`recon.posture.joints.shape_limbs`): the upper arm is deeper front to back
 #: than across (biceps and triceps; the deltoid over the joint): the oracle's sections (principal
 #: radii of the labels' cross-sections) measure 1.16-1.25 times deeper than wide on all 21 shipped
 #: bodies. The product is 1 (the fitted area is kept). (chosen) ratio 1.30 on the 13 average-male
@@ -135,7 +135,7 @@ UPPER_ARM_SHAPE = (1.14, 0.877)
 
 #: The reported upper arm's start cap at the shoulder, in minor radii: ``SHOULDER_CAP[0] +
 #: SHOULDER_CAP[1] * cos``, ``cos`` between the arm's axis and the chest's downward axis
-#: (`recon.joints.joint_caps`). The body file labels the deltoid upper arm; it covers the joint
+#: (`recon.posture.joints.joint_caps`). The body file labels the deltoid upper arm; it covers the joint
 #: from above, so the labels reach past the joint along a hanging arm's axis (the oracle's upper
 #: arms start 0.038-0.040 statures before the joint on the standing bodies) more than along one
 #: held sideways (t_pose 0.026) or raised (0.016-0.018). (chosen) with the arm shape 1.3: 13
@@ -145,7 +145,7 @@ UPPER_ARM_SHAPE = (1.14, 0.877)
 SHOULDER_CAP = (0.6, 0.6)
 
 #: The reported lower leg's cross-section radii, front to back and across, as multiples of the
-#: fitted (round) radius (`recon.joints.shape_limbs`): the calf lies behind the shin bone; the
+#: fitted (round) radius (`recon.posture.joints.shape_limbs`): the calf lies behind the shin bone; the
 #: oracle's sections measure 1.08-1.23 times deeper than wide (1.16 on the 1.76 m male rig) on the
 #: 21 shipped bodies (squat, whose foot folds under the thigh, aside). The product is 1.
 #: (chosen) ratio 1.30, as the upper arm's: 13 average-male bodies, estimated posture, section

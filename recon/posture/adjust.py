@@ -10,12 +10,12 @@ from __future__ import annotations
 import numpy as np
 
 from .bodymodel import LIMBS, StandardBody
-from .geometry import cross, fibonacci_sphere, perp, turn_between, unit
+from ..geometry import cross, fibonacci_sphere, perp, turn_between, unit
 from .joints import ELBOW_STRAIGHT_DEG as _ELBOW_STRAIGHT_DEG
 from .joints import neck_sides
 from .match import Pose
-from .model import SectionShape
-from .params import FitParams
+from ..model import SectionShape
+from ..params import FitParams
 
 
 def _assign(points, sections: dict, near: float):
@@ -485,7 +485,7 @@ def limb_columns(X, e, dirs, L, r):
     points ``X`` (m, 3): (k, m) whether each point is on the surface (within 0.6 r of it, between
     0.15 L and L), (k, m) whether it is in the core (nearer the axis than 0.4 r there), and (k, m)
     its position along and distance from the axis. Used by the forearm re-search and by
-    `recon.reach`."""
+    `recon.posture.reach`."""
     rel = X - e
     t = dirs @ rel.T
     rho = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))

@@ -3,7 +3,7 @@
 
 An arm held towards a camera is seen nearly end-on: the scan holds its fist and the tops of the
 upper arm and forearm, a few points spread along the limb, and the fine adjustment's arm covers
-too little of its column to be trusted (`recon.adjust.arm_doubtful`). The points still say where
+too little of its column to be trusted (`recon.posture.adjust.arm_doubtful`). The points still say where
 the arm is: a chain (upper arm, then forearm within the elbow's bend) from the fitted shoulder
 whose columns hold points no other section explains, whose HAND END holds points (the fist of an
 arm held out is always seen: it is the part nearest the camera the arm points at), and whose
@@ -18,8 +18,8 @@ import numpy as np
 
 from .adjust import _SEARCH_DIRS, _assign, axis_samples_inside, fit_section, limb_columns
 from .bodymodel import LIMBS, StandardBody
-from .geometry import fibonacci_sphere, perp
-from .params import FitParams
+from ..geometry import fibonacci_sphere, perp
+from ..params import FitParams
 
 __all__ = ["reach_arms"]
 
@@ -33,7 +33,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
     columns fit to a few cm, is not taken for an arm) are searched for a chain from the upper
     arm's start (the shoulder, placed with the torso), with the model's lengths and radii:
 
-    - upper arm: every direction of `recon.adjust._SEARCH_DIRS` (800 over the sphere) whose column
+    - upper arm: every direction of `recon.posture.adjust._SEARCH_DIRS` (800 over the sphere) whose column
       holds surface points (within 0.6 radii of its surface) in at least `reach_min_upper_bins` of
       its five fifths (an arm's seen surface runs along it, even sparsely: a direction grazing a
       patch of the trunk near the shoulder holds points only there), few in its core (at most
@@ -58,7 +58,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
       and the chest, wrist 49 cm off; found arms of arms_forward: at most 12 %).
 
     The chain with most fifths of its two sections holding points (then most points) is refined,
-    each section on the points it is nearest to (`recon.adjust.fit_section`, model radii and
+    each section on the points it is nearest to (`recon.posture.adjust.fit_section`, model radii and
     lengths, the forearm from the refined elbow; kept when it fits those points better), and
     replaces the arm. A scan without the arm (cut off, hidden) has no hand end on free points
     within reach, and the arm stays listed.
@@ -77,7 +77,7 @@ def reach_arms(points, secs: dict, resid: dict, counts: dict, listed, body: Stan
         The model at the fitted stature (lengths, radii).
     params : FitParams
     back : (3,) float, optional
-        Unit vector towards the body's back (front and back from the data, `recon.joints.front_sign`):
+        Unit vector towards the body's back (front and back from the data, `recon.posture.joints.front_sign`):
         a chain whose hand would lie behind the trunk, within `reach_back_clearance` of its
         or the thighs' columns (before or after its refinement), is not taken (a hand resting on
         the back cannot be told from the back's own surface, which the fitted torso's column

@@ -6,7 +6,7 @@ of at least ``far_min_points`` points gets a chart of its own, an elliptic colum
 principal axis (open at the end that joins the body, closed by a cap at the other), which also
 holds the meshed points within ``far_join`` spacings of the part, so that the part's surface
 joins its section's. The charts are triangulated and cleaned like any section's
-(`recon.surface.section_surface`, then the merge and the air rules); their faces carry the
+(`recon.surface.mesh.section_surface`, then the merge and the air rules); their faces carry the
 section whose axis comes nearest (a hand counts as its forearm, a foot as its lower leg).
 Smaller parts are outliers and stay out of the surface.
 
@@ -23,7 +23,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .model import SECTIONS, SectionShape
+from ..model import SECTIONS, SectionShape
 
 
 def far_parts(points: np.ndarray, far: np.ndarray, link: float, min_points: int):
@@ -114,7 +114,7 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     points : (n, 3) float, metres
     far : (n,) bool
         Points beyond T_d of every fitted section that the clustering labelled through their
-        neighbours (`recon.cluster.adopt_unlabeled`: connected to the body).
+        neighbours (`recon.clustering.cluster.adopt_unlabeled`: connected to the body).
     sections : dict of str to SectionShape
         The fitted sections (`BodyFit.sections`): a part goes to the one whose axis comes
         nearest (`nearest_axis`).
@@ -137,7 +137,7 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     -------
     list of (int, (k,) int, SectionShape, dict, (k',) int)
         Section index, point indices, chart and surface parameter changes of each part (for
-        `recon.surface.reconstruct_surfaces`'s ``extra``), and the part's own points (without
+        `recon.surface.mesh.reconstruct_surfaces`'s ``extra``), and the part's own points (without
         the joined ones: its solid in `closed_surface`). The parts' points are in no section
         of ``meshed``: not in their section's own chart, and never "inner" in the merge.
     """

@@ -2,7 +2,7 @@
 
 The volume score (`Scorer`), the torso's 6-DOF search, the limb chains' direction searches, the
 placement of a whole body at a size (`Pose`), and `coarse_match`: the ranked coarse poses that
-`recon.posture.estimate_posture` adjusts in turn.
+`recon.posture.fit.estimate_posture` adjusts in turn.
 """
 
 from __future__ import annotations
@@ -13,9 +13,9 @@ import numpy as np
 
 from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
 from .joints import find_crotch
-from .geometry import cross, fibonacci_sphere, frames_from_dirs, perp, rotvec, tangent_dir, unit
-from .model import SectionShape
-from .params import FitParams
+from ..geometry import cross, fibonacci_sphere, frames_from_dirs, perp, rotvec, tangent_dir, unit
+from ..model import SectionShape
+from ..params import FitParams
 from .volume import Volume
 
 

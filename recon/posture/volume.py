@@ -134,7 +134,7 @@ def require_voxels(shape, size: float) -> None:
     """Refuse (`ReconError`, one line) a voxel grid of ``shape`` that cannot fit in memory."""
     from bodyscan._resources import require_memory
 
-    from . import ReconError
+    from .. import ReconError
 
     n = float(np.prod(np.asarray(shape, dtype=np.float64)))
     require_memory(n * BYTES_PER_VOXEL, f"a voxel grid of {' x '.join(map(str, shape))} voxels of "

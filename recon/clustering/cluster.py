@@ -28,9 +28,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from .geometry import unit
-from .model import ADJACENT, SECTIONS, BodyFit, section_coords
-from .params import ClusterParams
+from ..geometry import unit
+from ..model import ADJACENT, SECTIONS, BodyFit, section_coords
+from ..params import ClusterParams
 
 NS = len(SECTIONS)
 
@@ -205,11 +205,11 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
     member : (n, 11) bool
         A refined copy.
     """
-    from .model import adjacency_matrix
+    from ..model import adjacency_matrix
 
     from bodyscan._resources import require_memory
 
-    from . import ReconError
+    from .. import ReconError
 
     out = member.copy()
     n_cells = params.mesh_theta * params.mesh_h
@@ -516,10 +516,10 @@ def flexed_hip_plane(points: np.ndarray, fit: BodyFit, params: ClusterParams) ->
     """(tilt, offset) of the hips' planes (``params.hip_plane_tilt``, ``params.hip_plane_offset``)
     when the hips are flexed, else None (without ``params.hip_planes`` too).
 
-    The hips count as flexed when no crotch is found along the thighs (`recon.joints.find_crotch`:
+    The hips count as flexed when no crotch is found along the thighs (`recon.posture.joints.find_crotch`:
     a thigh more than 45 degrees from the waist's downward axis, or no points between the legs).
     With the legs down, the crotch was found and the reported thighs start from it
-    (`recon.joints.split_hips`); the joint rule's fronts then place the seam, and a plane would
+    (`recon.posture.joints.split_hips`); the joint rule's fronts then place the seam, and a plane would
     have to be anchored on the crotch seen in the points, which steeper lasers see less (found
     -3.0 to +1.8 cm from the body file's at k = 1, -0.4 to +3.0 at k = 2, +2.6 to +5.4 cm at
     k = 3; through it, the upright postures lost up to 0.6 % at k = 3) or on the fitted hip
@@ -527,7 +527,7 @@ def flexed_hip_plane(points: np.ndarray, fit: BodyFit, params: ClusterParams) ->
     """
     if not params.hip_planes:
         return None
-    from .joints import find_crotch
+    from ..posture.joints import find_crotch
 
     if find_crotch(points, fit.sections) is not None:
         return None

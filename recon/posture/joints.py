@@ -17,8 +17,8 @@ import numpy as np
 from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, LOWER_LEG_SHAPE,
                         SHOULDER_CAP, SPINE_BACK, TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE,
                         UPPER_ARM_SHAPE, StandardBody, kind_of)
-from .geometry import cross, turn_between, unit
-from .model import SectionShape
+from ..geometry import cross, turn_between, unit
+from ..model import SectionShape
 
 #: Skewness giving a front/back vote of tanh(1) = 0.76 per section (`_trunk_vote`): about the
 #: head's on the library's bodies (-0.11 to -0.20). Chosen.
@@ -304,7 +304,7 @@ def bent_knee(thigh: SectionShape, shin: SectionShape, ankle: np.ndarray | None,
     a measured ankle, where the thigh's axis comes nearest.
 
     The thigh's axis is taken as placed last, not the lower leg's start: sliding the body along the
-    torso's axis to hang from the crown (`recon.adjust.anchor_on_head_top`) moves a level thigh
+    torso's axis to hang from the crown (`recon.posture.adjust.anchor_on_head_top`) moves a level thigh
     along itself only and the lower leg with the torso, so the lower leg's start leaves the thigh's
     axis (seated: 3-6 cm off the knee).
 
@@ -410,9 +410,9 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: flo
 
     The waist column (pelvis joint to chest joint) is cut across its axis ``from_crotch`` of the way
     from the crotch seen in the points (`find_crotch`) to the chest joint, along the axis
-    (`recon.bodymodel.TORSO_SPLIT_CROTCH`), or, when no crotch is found (hips flexed, legs
-    together), at ``split`` of its length from the pelvis (`recon.bodymodel.TORSO_SPLIT`); the cut
-    stays within ``limits`` of the column (`recon.bodymodel.TORSO_SPLIT_RANGE`). The chest column
+    (`recon.posture.bodymodel.TORSO_SPLIT_CROTCH`), or, when no crotch is found (hips flexed, legs
+    together), at ``split`` of its length from the pelvis (`recon.posture.bodymodel.TORSO_SPLIT`); the cut
+    stays within ``limits`` of the column (`recon.posture.bodymodel.TORSO_SPLIT_RANGE`). The chest column
     runs from the cut to its top; the joints are not moved. Both sections then meet at the section
     boundary of the body file format, which is what the clustering separates: split at the chest
     joint, 5-17 % of a body's points (the lower ribs) were labelled waist. The crotch, seen on the
@@ -446,7 +446,7 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: flo
 #: head lengths above the chest's top end, along the head's axis (above the trapezius, below the
 #: jaw), within ``NECK_REACH`` head lengths of the chest's top (clear of arms raised beside the
 #: head); their midpoint is taken between the ``NECK_QUANTILE`` and ``1 - NECK_QUANTILE`` quantiles
-#: across the body. (chosen) like `recon.adjust._neck_shift`'s slab (0.02-0.06 statures, within
+#: across the body. (chosen) like `recon.posture.adjust._neck_shift`'s slab (0.02-0.06 statures, within
 #: 0.08), in head lengths, which the reported sections carry.
 NECK_SLAB = (0.1, 0.3)
 NECK_REACH = 0.6
@@ -496,7 +496,7 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     joints are placed (`recon.posture`), so that the neck, shoulder and elbow joints follow: then
     leaning 0.967, and `benchmarks.fit_table` (84 runs, 10 mm) mean median joint error 2.39 ->
     2.35 cm, mean largest 4.84 -> 4.69 cm (leaning k1 3.2 / 6.8 -> 2.7 / 4.2 cm), no outcome changed.
-    `recon.adjust._neck_shift` does the same during the fine adjustment, within 25 degrees of the
+    `recon.posture.adjust._neck_shift` does the same during the fine adjustment, within 25 degrees of the
     waist's axis; this one follows the head's axis and carries the shoulders.
 
     Parameters
@@ -592,7 +592,7 @@ def find_crotch(points, secs: dict, strip: float = CROTCH_STRIP,
 
 def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
     """The reported thighs start no higher than ``above`` thigh lengths above the crotch seen in
-    the points (`find_crotch`), along each thigh (`recon.bodymodel.CROTCH_SPLIT`): the body file
+    the points (`find_crotch`), along each thigh (`recon.posture.bodymodel.CROTCH_SPLIT`): the body file
     labels the buttocks and the groin waist down to about there. The fit's thigh columns start
     at its hip joints, which ride with the waist: a waist fitted 3-4 cm high (a_pose,
     child_arms_raised) started the thighs as much above the labels' boundary, and the thighs took
@@ -619,7 +619,7 @@ def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
 def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
     """The reported thigh ends at the knee joint (placed by `knee_between` when the ankle was found
     from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
-    it along the shank, where the body file's labels change (`recon.bodymodel.KNEE_SPLIT`).
+    it along the shank, where the body file's labels change (`recon.posture.bodymodel.KNEE_SPLIT`).
 
     Estimated-posture section accuracy, 21 bodies: 0.892 -> 0.898 for the drop (0.894 when the
     thigh is also extended to meet it), then 0.905 -> 0.911 (min 0.810 -> 0.839) for meeting at
@@ -646,14 +646,14 @@ _FREE_ENDS = {("waist", 0), ("head", 1)} | {(dist, 1) for _, dist, *_ in LIMBS}
 def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER_CAP,
                limb_shapes: dict | None = None) -> dict:
     """The reported sections with flat caps where they meet at a joint (``height`` minor radii,
-    `recon.bodymodel.JOINT_CAP`), as the ground truth's sections have: the fit's hemispheres there
+    `recon.posture.bodymodel.JOINT_CAP`), as the ground truth's sections have: the fit's hemispheres there
     reach into the neighbour (a thigh's, 9 cm into the waist, took its points). Free ends keep
     their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890.
 
     The upper arms and lower legs first get their cross-sections (`shape_limbs`, ``limb_shapes``);
     the upper arms' start cap at the shoulder is ``shoulder[0] + shoulder[1] * cos`` minor radii
     high (flatter than ``height`` on an arm raised overhead), ``cos`` the cosine between the arm's
-    axis and the chest's downward axis (`recon.bodymodel.SHOULDER_CAP`): the body file labels the
+    axis and the chest's downward axis (`recon.posture.bodymodel.SHOULDER_CAP`): the body file labels the
     deltoid, which covers the shoulder joint from above, upper arm, so the labels reach past the
     joint along a hanging arm's axis (0.04 statures on the oracle's sections, which span their
     labels) more than along a raised one's (0.016-0.026).
@@ -676,7 +676,7 @@ def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER
 def shape_limbs(secs: dict, shapes: dict | None = None, min_sin: float = 0.5) -> dict:
     """The reported upper arms and lower legs with an elliptic cross-section: front to back
     ``shapes[kind][0]``, across ``shapes[kind][1]`` times the fitted (round) radius
-    (`recon.bodymodel.UPPER_ARM_SHAPE`, `recon.bodymodel.LOWER_LEG_SHAPE`).
+    (`recon.posture.bodymodel.UPPER_ARM_SHAPE`, `recon.posture.bodymodel.LOWER_LEG_SHAPE`).
 
     Both are deeper front to back than across: the upper arm (biceps in front, triceps behind, the
     deltoid over the joint), the lower leg (the calf behind the shin bone): the oracle's sections

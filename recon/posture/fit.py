@@ -18,7 +18,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    on 96, the facing with retries at 3 unfitted 98 (1 wrong: a heavy body turned 30 degrees,
    matched 17 cm low), the pair with retries 100 (0 wrong); with the bodies turned 200 degrees at
    k = 2 too (126 scans), 116 (2 wrong) -> 117 (1 wrong).
-1. Volume data (`recon.volume`): voxel size from the sparsest part's density, clamped to
+1. Volume data (`recon.posture.volume`): voxel size from the sparsest part's density, clamped to
    [`voxel_min`, `voxel_max`].
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
    model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
@@ -97,14 +97,14 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    torso from the crown (`match_resized_anchor_shift`). Crown to sole is measured over
    the coarse model: where a joint bends (a knee, the head on the trunk) the model's segment before
    it, not the points, sets where the next one hangs, so that segment's unseen part (its length x
-   (1 - cos bend)) is taken out of the measured and the model lengths (`recon.match.size_ratios`).
+   (1 - cos bend)) is taken out of the measured and the model lengths (`recon.posture.match.size_ratios`).
    (`match_size_from_crown` = 1 always sizes adult bodies from crown to sole; off by default: on
    the shipped library it fixes some k = 3 sizes but misplaces a seated and a squatting body.)
    When the legs size an adult body but crown to sole differs from them by more than
    `match_resize_tolerance`, the body is matched at both sizes and the match explaining more points
    is kept (`match_size_both`: a walker 1.97 m tall, legs 2.18 m, crown to sole 2.02 m; the 2.02 m
    match explained 0.869 of the points against 0.836). Legs cut from the scan (partial bodies) are
-   told from whole ones by the trunk, crown to the crotch seen in the points, `recon.match.CROWN_CROTCH`
+   told from whole ones by the trunk, crown to the crotch seen in the points, `recon.posture.match.CROWN_CROTCH`
    = 0.52 statures (ANSUR II): when both leg chains measure under `match_leg_trunk_min` of it, the
    trunk sizes the body and the lower legs are listed (a walker without its lower legs had been
    judged 1.22 m tall, true 1.71; now 1.68).
@@ -117,27 +117,27 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    axis at the model's proportions (straight joints, and a joint whose distal section is
    unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
-   bend of the fitted axes (`recon.joints.knee_between`: where two nearly straight axes meet is ill-defined);
+   bend of the fitted axes (`recon.posture.joints.knee_between`: where two nearly straight axes meet is ill-defined);
    likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
    shoulder to wrist measures more than `fit_arm_size_tolerance` off the model's arm (the body's size
-   was misjudged: `recon.joints.elbow_between`);
+   was misjudged: `recon.posture.joints.elbow_between`);
    the chest's top end is aimed at the fitted head (within 25 degrees of the waist's axis; the arms
    beside it fix the chest's own direction poorly), then centred between the sides of the neck
-   (`recon.adjust._neck_shift`), and the shoulders turn with it; the hips ride with the waist
+   (`recon.posture.adjust._neck_shift`), and the shoulders turn with it; the hips ride with the waist
    (moved and turned with it, then taken onto the thighs' axes). The torso, head and legs slide along the torso
    axis (at most `fit_max_shift`) so that the neck lies a standard head length below the detected
    crown (a leg section turned more than 45 degrees from that axis, a thigh held level, slides
    along its own axis only: it stays on its points), and the neck and head follow the crown up to
    `fit_anchor_max_shift` further up; the arms stay on their points and only the shoulders follow,
-   along the upper arms, rising with an arm raised above the horizontal (`recon.adjust._move_shoulders`). A
+   along the upper arms, rising with an arm raised above the horizontal (`recon.posture.adjust._move_shoulders`). A
    wrist lies a hand length before the fingertips; a hand resting on the thigh or hip, whose
-   points went to those sections, is followed along the forearm's axis (`recon.joints._fingertip`).
+   points went to those sections, is followed along the forearm's axis (`recon.posture.joints._fingertip`).
 6. Front and back, hence left and right, come from the data, never from the scanner: feet point
    forward from the shins, knees bend backward, hips bend forward. The foot is the lowest part of
    the leg chain (against the scanner's +z), not the fitted shin's end, which in a sparse scan
    falls short of the sole onto the calf (a calf bulges backwards: left and right came out swapped
    at 20-30 mm). Only the leg sections the scan shows vote; when one is missing or none votes, the
-   head and chest vote too (`recon.joints._trunk_vote`: the face and the chest stick out in front of
+   head and chest vote too (`recon.posture.joints._trunk_vote`: the face and the chest stick out in front of
    their sections' axes; it agreed with the legs on all 42 library runs at k = 1 and 3). A scan
    rotated about the vertical gives the same fit.
 7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
@@ -145,12 +145,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
    warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
-   points from its elbow (`recon.adjust.research_forearms`: a forearm against the body merges with
+   points from its elbow (`recon.posture.adjust.research_forearms`: a forearm against the body merges with
    the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
    when the check no longer doubts it and its axis does not run inside another section
-   (`recon.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
+   (`recon.posture.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
    points). An arm section whose axis comes within `fit_arm_clearance` of its radii of the
-   trunk's fitted columns is listed (`_on_trunk`; also after `recon.reach`): an arm against the
+   trunk's fitted columns is listed (`_on_trunk`; also after `recon.posture.reach`): an arm against the
    body keeps its axis a radius outside the skin, and one nearer is a patch of the trunk's own
    surface (scans without an arm found a forearm across the chest, an upper arm down its front).
    A section in empty voxels whose seen surface fits it (shell
@@ -171,19 +171,19 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
    silently as a fit.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
-   head and shoulders following (`recon.joints.centre_neck`). The joints are the rig's (the body
+   head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
    file format's); the sections reported in the `BodyFit` meet
    where the body file's section labels change, which is not always at a joint: the torso splits
-   into waist and chest at `recon.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
+   into waist and chest at `recon.posture.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
-   column; `recon.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths
-   above the crotch seen in the points (`recon.joints.split_hips`), the lower legs start
+   column; `recon.posture.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths
+   above the crotch seen in the points (`recon.posture.joints.split_hips`), the lower legs start
    `KNEE_SPLIT` statures below the knees, sections meeting at a joint have flat caps (`JOINT_CAP`),
    and the reported upper arms and lower legs are deeper front to back than across, the upper arm
-   with a cap over the shoulder (`recon.joints.shape_limbs`: the deltoid is upper arm, the calf lies
+   with a cap over the shoulder (`recon.posture.joints.shape_limbs`: the deltoid is upper arm, the calf lies
    behind the shin). The clustering separates the sections there.
 
-The code: `recon.match` (steps 2-4), `recon.adjust` (step 5), `recon.joints` (joints, front and
+The code: `recon.posture.match` (steps 2-4), `recon.posture.adjust` (step 5), `recon.posture.joints` (joints, front and
 back, reported sections: steps 5, 6, 8); the entry point and the checks (step 7) are here; the
 parameters are `recon.params.FitParams`.
 """
@@ -195,16 +195,16 @@ import warnings
 
 import numpy as np
 
-from . import ReconError
+from .. import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
-from .cloud import check_points
-from .geometry import rotvec
+from ..cloud import check_points
+from ..geometry import rotvec
 from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
 from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, shank_ratio, split_hips,
                      split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
-from .model import BodyFit, SECTIONS
-from .params import FitParams
+from ..model import BodyFit, SECTIONS
+from ..params import FitParams
 from .reach import reach_arms
 from .volume import voxel_size, voxelize
 

@@ -1,0 +1,1 @@
+"""Real scanner conditions (beyond the paper, whose clouds were noise-free): outliers, head registration, denoising."""
