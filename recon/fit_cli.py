@@ -24,8 +24,11 @@ def register(sub) -> None:
 
 
 def run(args) -> int:
+    from dataclasses import fields
+
     from .cloud import read_cloud
-    from .posture.fit import FitParams, estimate_posture
+    from .params import CleanParams, FitParams, ReconParams
+    from .pipeline import estimate_fit
 
     from bodyscan._io import check_out, write_json
 
@@ -36,9 +39,15 @@ def run(args) -> int:
     if wants_help(args.param):
         from .params import stage_help
 
-        print(stage_help(("fit",)))
+        print(stage_help(("fit", "clean")))
         return 0
-    params = FitParams.from_strings(args.param)
+    known = {f.name for cls in (FitParams, CleanParams) for f in fields(cls)}
+    for pair in args.param:   # the posture depends on the fit's and the cleaning's parameters only
+        name, sep, _ = pair.partition("=")
+        if not sep or name.strip() not in known:
+            raise ReconError(f"--param {pair!r}: expected name=value with name a parameter of the "
+                             "posture fit or the cleaning before it (`--param help` lists them)")
+    params = ReconParams.from_overrides({n.strip(): v for n, _, v in (p.partition("=") for p in args.param)})
     out = check_out(args.out, error=ReconError)
     if args.preview:
         check_out(args.preview, option="--preview", error=ReconError)
@@ -46,7 +55,7 @@ def run(args) -> int:
     print(f"bodyscan fit: {len(cloud.points)} points from {args.cloud}", file=sys.stderr)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        fit = estimate_posture(cloud.points, params, view_dir=cloud.view_dir)
+        fit = estimate_fit(cloud.points, params, view_dir=cloud.view_dir, head=cloud.head)
     for w in caught:
         print(f"bodyscan fit: warning: {w.message}", file=sys.stderr)
     write_json(out, fit.to_dict(), indent=1, error=ReconError)

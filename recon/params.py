@@ -481,7 +481,7 @@ class SurfaceParams:
         "unit": "m", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
-                "charts of their own joined to their section (recon.surface.complete; False: the paper)",
+                "charts of their own, joined to their section (False: the paper)",
         "unit": "", "range": (False, True)})
     far_link: float = field(default=2.5, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
@@ -561,6 +561,7 @@ class CleanParams:
                 "head of each point)", "unit": "", "range": None})
 
     def __post_init__(self):
+        check_fields(self, ReconError)
         _check(self.outlier_z >= 0, "outlier_z", self.outlier_z, ">= 0 (0 = off)")
         _check(self.outlier_floor >= 0, "outlier_floor", self.outlier_floor, ">= 0 spacings")
         _check(self.outlier_isolation >= 0, "outlier_isolation", self.outlier_isolation, ">= 0 spacings")
@@ -987,13 +988,15 @@ class ReconParams:
         return cls(**built)
 
 
-def stage_help(stages=("fit", "cluster", "surface")) -> str:
+def stage_help(stages=("fit", "clean", "cluster", "surface")) -> str:
     """The ``--param help`` text of the reconstruction's parameters, grouped by stage."""
     from bodyscan._params import param_help
 
     titles = {"fit": ("fit: posture estimation (paper section 2)", FitParams),
               "cluster": ("cluster: clustering into body sections (paper section 3)", ClusterParams),
-              "surface": ("surface: per-section Delaunay surfaces (paper section 3.3)", SurfaceParams)}
+              "surface": ("surface: per-section Delaunay surfaces (paper section 3.3)", SurfaceParams),
+              "clean": ("clean: outliers, head registration, denoising (real scans; beyond the paper)",
+                        CleanParams)}
     return param_help(dict(titles[s] for s in stages))
 
 

@@ -28,11 +28,11 @@ from bodyscan._params import coerce, fields_without_help, kind, param_help, pars
 from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import MetricParams
 from bodyscan.benchmarks.peers import PeerParams
-from bodyscan.recon.params import ClusterParams, FitParams, ReconParams, SurfaceParams
+from bodyscan.recon.params import CleanParams, ClusterParams, FitParams, ReconParams, SurfaceParams
 from bodyscan.simulator.config import Head, ScannerConfig
 
 #: Every params class, with its stage's error (a ValueError subclass: one line, exit code 2).
-CLASSES = (ScannerConfig, Head, FitParams, ClusterParams, SurfaceParams, MetricParams, PeerParams)
+CLASSES = (ScannerConfig, Head, FitParams, CleanParams, ClusterParams, SurfaceParams, MetricParams, PeerParams)
 #: Hypothesis examples per test (modest: the whole file stays within seconds).
 EXAMPLES = 60
 FUZZ = settings(max_examples=EXAMPLES, deadline=None, derandomize=True,
@@ -103,9 +103,11 @@ def test_param_help_is_grouped_and_generated(capsys):
     assert code == 0
     assert [ln for ln in out.splitlines() if ln.endswith(":")] == [
         "fit: posture estimation (paper section 2):",
+        "clean: outliers, head registration, denoising (real scans; beyond the paper):",
         "cluster: clustering into body sections (paper section 3):",
         "surface: per-section Delaunay surfaces (paper section 3.3):"]
-    for f in dataclasses.fields(FitParams) + dataclasses.fields(ClusterParams) + dataclasses.fields(SurfaceParams):
+    for f in (dataclasses.fields(FitParams) + dataclasses.fields(CleanParams) + dataclasses.fields(ClusterParams)
+              + dataclasses.fields(SurfaceParams)):
         line = next(ln for ln in out.splitlines() if ln.strip().startswith(f.name + "="))
         assert f.metadata["help"] in line
     t_d = next(ln for ln in out.splitlines() if ln.strip().startswith("t_d="))
