@@ -752,8 +752,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
     jobs += list(extra)
 
-    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles)
-    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0)
+    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), and
+    # the boundary peel without our hull_edge_min
+    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0)
 
     def run(job):
         j, idx, shape = job[:3]
