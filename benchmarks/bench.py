@@ -50,6 +50,8 @@ from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
 RECON_METHODS = ("proposed", "proposed-closed", "paper", "simple")
+#: Recon methods that fit the posture their own way (not the scan's shared fit; its time is theirs).
+OWN_FIT_METHODS = ("paper",)
 #: Every method the benchmark knows, in table order.
 METHODS = RECON_METHODS + tuple(PEERS)
 
@@ -494,7 +496,7 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
     ground_truth(body, config.metric)
     methods = [resolve(m) for m in config.methods]
     recon_only = recon_params_of(methods, config.recon)
-    uses_recon = any(m.kind == "recon" and m.name != "paper" for m in methods)   # the shared fit
+    uses_recon = any(m.kind == "recon" and m.name not in OWN_FIT_METHODS for m in methods)   # the shared fit
     out = []
     for preset in config.presets:
         for k in config.ks:
@@ -530,7 +532,7 @@ def _bench_body(body_name: str, config: "BenchConfig", picture_case, verbose: bo
                     base["peak_memory_fit_mb"] = float(fit_mb)
                 caught = list(fit_warn) if is_recon else []
                 try:
-                    own_fit = m.name == "paper"   # the paper's method fits the posture its own way
+                    own_fit = m.name in OWN_FIT_METHODS
                     if is_recon and not own_fit and fit_error:
                         raise BenchError(f"posture estimation failed: {fit_error}")
                     with warnings.catch_warnings(record=True) as more:
@@ -740,7 +742,7 @@ def shared_times(table) -> str:
     if "time_scan_s" in ok.columns:
         parts.append(f"scan {per_scan['time_scan_s'].first().mean():.2f} s")
     if "time_fit_s" in ok.columns and ok["time_fit_s"].notna().any():
-        fit = ok[ok["time_fit_s"].notna()]
+        fit = ok[ok["time_fit_s"].notna() & ~ok["method"].isin(OWN_FIT_METHODS)]
         users = ", ".join(method_order(fit["method"]))
         parts.append(f"posture fit {fit.groupby(['body', 'preset', 'k'])['time_fit_s'].first().mean():.2f} s "
                      f"(shared by {users}; not in their recon s)")
