@@ -3,7 +3,8 @@
 import numpy as np
 
 from bodyscan.recon.clean.denoise import denoise, reject_outliers
-from bodyscan.recon.clean.register import _log_rotation, _rotvec, register_heads
+from bodyscan.recon.clean.register import _log_rotation, register_heads
+from bodyscan.recon.geometry import rotvec
 
 R = 0.05        # cylinder radius, metres
 PITCH = 0.005   # scan pitch, metres
@@ -105,7 +106,7 @@ def two_head_surface(overlap=0.3, n=30000, seed=0):
 def test_planted_misregistration_between_heads_is_recovered():
     p, head, c = two_head_surface()
     axis = np.array([0.3, 0.5, 0.8]) / np.linalg.norm([0.3, 0.5, 0.8])
-    rot, shift = _rotvec(np.radians(0.5) * axis), np.array([0.0015, -0.001, 0.0008])
+    rot, shift = rotvec(np.radians(0.5) * axis), np.array([0.0015, -0.001, 0.0008])
     q = p.copy()
     q[head == 1] = (p[head == 1] - c) @ rot.T + c + shift      # 0.5 degrees and 2 mm
     reg = register_heads(q, head, spacing=0.004)

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ..geometry import rotvec
 from .denoise import TUKEY, local_fits, robust_scale
 
 
@@ -70,16 +71,6 @@ class Registration:
             if vd is not None:
                 vd[sel] = vd[sel] @ self.rotation[h].T
         return p, vd
-
-
-def _rotvec(w: np.ndarray) -> np.ndarray:
-    """(3, 3) rotation by the rotation vector ``w`` (radians), Rodrigues."""
-    a = float(np.linalg.norm(w))
-    if a < 1e-15:
-        return np.eye(3)
-    k = w / a
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * (K @ K)
 
 
 def _log_rotation(r: np.ndarray) -> np.ndarray:
@@ -190,7 +181,7 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
                 se = scale / np.sqrt(np.maximum(lam, 1e-300))
                 keep = se < max_error
                 step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
-                dr = _rotvec(step[:3])
+                dr = rotvec(step[:3])
                 r_h = dr @ r_h
                 t_h = dr @ t_h + step[3:]
                 limit = max(4 * scale + 2 * spacing, 0.7 * limit)
@@ -201,7 +192,7 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
             rot[h] = r_h @ rot[h]
             trans[h] = r_h @ trans[h] + t_h
     # remove the heads' mean motion: the corrections are relative, no head is exact
-    back = _rotvec(-np.mean([_log_rotation(r) for r in rot[:nh]], axis=0))
+    back = rotvec(-np.mean([_log_rotation(r) for r in rot[:nh]], axis=0))
     t_mean = trans[:nh].mean(axis=0)
     for h in range(nh):
         rot[h] = back @ rot[h]
