@@ -308,7 +308,10 @@ def test_bad_inputs(name, command, files, capsys):
     assert_user_error(code, err)
 
 
-def test_issue_cases_memory(files, capsys):
+def test_issue_cases_memory(files, capsys, monkeypatch):
+    # a fixed limit: the guard must refuse these on any machine, and a machine whose limit the
+    # guard cannot see would otherwise really try the allocation (CI was killed that way)
+    monkeypatch.setenv("BODYSCAN_MEMORY_LIMIT_MB", "2000")
     code, _, err = run(["scan", "standing", "--out", files / "big.ply", "--resolution", "1e-4"], capsys)
     assert_user_error(code, err, "would need about", "coarser resolution")
     code, _, err = run(["fit", files / "c.ply", "--out", files / "f.json", "--param", "voxel_min=0.001",
