@@ -20,6 +20,10 @@ fixed::
                                                                     # crossed with the grid
     keep_meshes: 3                   # per method, the meshes of the 3 worst jobs (of distinct
                                      # scans) are kept for the report's pictures
+    sample: {seed: 1000, n: 10}      # and bodies 0-9 of the random corpus of seed 1000 (the
+                                     # validate set), drawn here by `bodyscan.poses.sample` when
+                                     # not yet in the cache (needs the bodies extra; see
+                                     # `sampled_bodies`)
 
 A method of your own (`benchmarks.methods`: ``[NAME=]module:function``, ``NAME=cmd:TEMPLATE``
 or an installed entry point) is listed under ``methods`` like a built-in one; its own parameters
@@ -81,7 +85,9 @@ DEFAULT_RUNNER = "bodyscan.benchmarks.sweep"
 COMPACT_EVERY = 100
 #: Top-level keys of a sweep file.
 SWEEP_KEYS = ("name", "description", "bodies", "seeds", "methods", "scanner", "recon", "runner",
-              "keep_meshes", "method_params")
+              "keep_meshes", "method_params", "sample")
+#: Environment variable naming the folder where sampled corpus bodies are kept between runs.
+CACHE_ENV = "BODYSCAN_CACHE_DIR"
 
 
 @dataclass(frozen=True)
@@ -207,8 +213,14 @@ def load_sweep(path) -> Sweep:
         bodies = list_bodies()
         if not bodies:
             raise BenchError(f"{path}: bodies: library, but the pose library is empty")
-    bodies = tuple(str(b) for b in _as_list(bodies, where, "bodies"))
+    bodies = tuple(str(b) for b in _as_list(bodies, where, "bodies")) if bodies else ()
     body_paths = {b: _resolve_body(b, path.parent) for b in bodies}
+    if spec.get("sample") is not None:
+        sampled = sampled_bodies(spec["sample"], where=where)
+        bodies += tuple(p.stem for p in sampled)
+        body_paths.update({p.stem: str(p) for p in sampled})
+    if not bodies:
+        raise BenchError(f"{path}: no bodies (give bodies:, sample:, or both)")
     seeds = tuple(_as_list(spec.get("seeds", [0]), where, "seeds"))
     if not all(isinstance(s, int) and not isinstance(s, bool) and s >= 0 for s in seeds):
         raise BenchError(f"{path}: seeds must be non-negative integers, got {list(seeds)}")
@@ -253,6 +265,40 @@ def load_sweep(path) -> Sweep:
         except (ValueError, KeyError, TypeError) as exc:
             raise BenchError(f"{path}: {exc}") from None
     return sweep
+
+
+def sampled_bodies(spec, *, where: str = "sweep") -> list[Path]:
+    """The body files of a sweep file's ``sample:`` entry (a mapping or a list of them, each
+    ``{seed: S, n: N, start: 0}``): bodies ``start .. start + n - 1`` of the random corpus of
+    ``seed`` (`bodyscan.poses.sample`), drawn once and kept in ``$BODYSCAN_CACHE_DIR`` (default
+    ``~/.cache/bodyscan``) under ``corpus/g<generator version>/s<seed>``. A body is a function of
+    (seed, index) and the generator's version, so a kept one is the one a new draw would give."""
+    from bodyscan.poses import BodyError
+
+    entries = spec if isinstance(spec, list) else [spec]
+    paths = []
+    for entry in entries:
+        if not isinstance(entry, dict) or set(entry) - {"seed", "n", "start"} or not {"seed", "n"} <= set(entry):
+            raise BenchError(f"{where}: sample: give {{seed: S, n: N}} (optionally start: I), got {entry!r}")
+        seed, n, start = entry["seed"], entry["n"], entry.get("start", 0)
+        if not all(isinstance(v, int) and not isinstance(v, bool) for v in (seed, n, start)) \
+                or seed < 0 or n < 1 or start < 0 or n > 10000:
+            raise BenchError(f"{where}: sample: seed and start must be integers >= 0 and n in 1..10000, "
+                             f"got {entry!r}")
+        from bodyscan.poses.generate import GENERATOR_VERSION
+        from bodyscan.poses.sample import sample
+
+        root = Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "bodyscan")
+        folder = root / "corpus" / f"g{GENERATOR_VERSION}" / f"s{seed}"
+        missing = sum(not any(folder.glob(f"s{seed}_{i:04d}_*.npz")) for i in range(start, start + n))
+        if missing:
+            print(f"{where}: drawing {missing} of {n} corpus bodies (seed {seed}) into {folder} "
+                  f"(about 10 s each, once)", file=sys.stderr, flush=True)
+        try:
+            paths += sample(n, seed, folder, start=start)
+        except BodyError as exc:
+            raise BenchError(f"{where}: sample: {exc}") from None
+    return paths
 
 
 def expand_grid(section: dict, *, where: str = "sweep") -> list[dict]:

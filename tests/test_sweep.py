@@ -117,6 +117,29 @@ def test_sweep_file_errors_name_the_file(tmp_path, toy):
         load_sweep(tmp_path / "missing.yaml")
 
 
+def test_sampled_corpus_bodies_join_the_listed_ones(tmp_path, toy, monkeypatch):
+    from bodyscan.poses.generate import GENERATOR_VERSION
+
+    cache = tmp_path / "cache"
+    kept = cache / "corpus" / f"g{GENERATOR_VERSION}" / "s7"
+    kept.mkdir(parents=True)
+    for name in ("s7_0000_squat", "s7_0001_seated", "s7_0002_t_pose"):
+        (kept / f"{name}.npz").write_bytes(b"")     # kept bodies are not drawn again
+    monkeypatch.setenv("BODYSCAN_CACHE_DIR", str(cache))
+    sweep = load_sweep(write_sweep(tmp_path / "s.yaml", bodies=["a"], sample={"seed": 7, "n": 2, "start": 1}))
+    assert sweep.bodies == ("a", "s7_0001_seated", "s7_0002_t_pose")
+    assert sweep.body_paths["s7_0002_t_pose"] == str(kept / "s7_0002_t_pose.npz")
+    only = load_sweep(write_sweep(tmp_path / "s.yaml", bodies=[], sample=[{"seed": 7, "n": 1}]))
+    assert only.bodies == ("s7_0000_squat",)
+
+
+@pytest.mark.parametrize("sample", [{"seed": 7}, {"seed": -1, "n": 2}, {"seed": 7, "n": 0}, {"seed": 7, "n": 1, "x": 1},
+                                    "s7", {"seed": 7, "n": 2.5}])
+def test_bad_sample_entries(tmp_path, toy, sample):
+    with pytest.raises(BenchError, match="sample:"):
+        load_sweep(write_sweep(tmp_path / "s.yaml", sample=sample))
+
+
 def test_job_ids_are_stable_and_distinct(tmp_path, toy):
     sweep = load_sweep(write_sweep(tmp_path / "s.yaml", seeds=[0, 1], methods=["m1", "m2"]))
     jobs = sweep.jobs()
@@ -390,4 +413,8 @@ def test_shipped_sweep_files():
     assert {(s["mesh_theta"], s["mesh_h"]) for s in paper.recon} == {(5, 5), (10, 10), (20, 20)}
     assert {s["t_d"] for s in paper.recon} >= {0.3} and paper.methods == ("proposed",)
     ci = load_sweep(SWEEPS_DIR / "ci.yaml")
-    assert set(ci.methods) == {"proposed", "simple", "proposed-closed"} and len(ci.jobs()) <= 18
+    assert set(ci.methods) == {"proposed", "simple", "proposed-closed"}
+    # three library bodies and the first 10 validate bodies, drawn (or taken from the cache)
+    drawn = [b for b in ci.bodies if b.startswith("s1000_")]
+    assert len(ci.bodies) == 13 and [b[:10] for b in drawn] == [f"s1000_{i:04d}" for i in range(10)]
+    assert len(ci.jobs()) == 13 * 2 * 3
