@@ -554,6 +554,10 @@ class CleanParams:
     denoise_radius: float = field(default=0.02, metadata={
         "help": "points of each denoising fit lie within this distance (at least 10 of them)",
         "unit": "m", "range": (0.0, None)})
+    denoise_share: float = field(default=2.0, metadata={
+        "help": "denoising fits only at one point per cube of this many point spacings, each point "
+                "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
+        "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={
@@ -569,6 +573,7 @@ class CleanParams:
         _check(int(self.denoise_neighbours) >= 10, "denoise_neighbours", self.denoise_neighbours,
                "an integer >= 10")
         _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
+        _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
         _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
 
 

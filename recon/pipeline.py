@@ -379,7 +379,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         t0 = time.perf_counter()
         c = params.clean
         dn = denoise(p, meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
-                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers)
+                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
+                     c.denoise_share)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0
