@@ -561,8 +561,9 @@ class CleanParams:
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={
-        "help": "correct the rigid offset between scanner heads by ICP on their overlap (needs the "
-                "head of each point)", "unit": "", "range": None})
+        "help": "correct the rigid offset between scanner heads: ICP on their overlap, or for two "
+                "opposite parallel heads their common silhouette (needs the head of each point)",
+        "unit": "", "range": None})
 
     def __post_init__(self):
         check_fields(self, ReconError)

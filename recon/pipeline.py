@@ -244,6 +244,10 @@ def _prepare(points, params, view_dir, head) -> Prepared:
             from .clean.register import register_heads
 
             reg = register_heads(points[keep], head[keep], spacing)
+            if not reg.observable.any() and view_dir is not None and np.ndim(view_dir) == 2:
+                from .clean.register import register_silhouettes  # opposite heads: no overlap
+
+                reg = register_silhouettes(points[keep], head[keep], view_dir[keep], spacing)
             points, view_dir = reg.apply(points, head, view_dir)
     return Prepared(points, view_dir, keep, reg)
 

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from bodyscan.recon.clean.denoise import denoise, reject_outliers
-from bodyscan.recon.clean.register import _log_rotation, register_heads
+from bodyscan.recon.clean.register import _log_rotation, register_heads, register_silhouettes
 from bodyscan.recon.geometry import rotvec
 
 R = 0.05        # cylinder radius, metres
@@ -145,3 +145,35 @@ def test_the_cloud_reader_keeps_the_heads_and_no_ground_truth(tmp_path):
     cloud = read_cloud(simulator.write_cloud(scan, tmp_path / "c.ply"))
     assert np.array_equal(cloud.head, scan.head)
     assert not any(k.startswith("gt_") for k in vars(cloud))
+
+
+def test_opposite_heads_are_registered_by_their_silhouettes():
+    # front and rear parallel views of a body-sized cylinder share its outline (the sides and the
+    # ends): a rear head moved across the view and turned about it is brought back; along the view
+    # it cannot be told from a thicker cylinder, and is left alone
+    p, vd, head, true = scanned_cylinder(0.001, radius=0.15, height=1.6)
+    c = (p.min(axis=0) + p.max(axis=0)) / 2
+    rot, shift = rotvec(np.radians(0.5) * np.array([0.0, 1.0, 0.0])), np.array([0.0015, 0.002, -0.0012])
+    q = p.copy()
+    q[head == 1] = (p[head == 1] - c) @ rot.T + c + shift
+    reg = register_silhouettes(q, head, vd, spacing=PITCH)
+    r_rel = reg.rotation[0].T @ reg.rotation[1] @ rot        # what is left of the rotation
+    assert np.degrees(np.linalg.norm(_log_rotation(r_rel))) < 0.1
+    fixed, _ = reg.apply(q, head)
+    back = (fixed[head == 1] - c - reg.translation[0]) @ reg.rotation[0] + c   # in head 0's frame
+    left = (back - p[head == 1]).mean(axis=0)
+    assert np.all(np.abs(left[[0, 2]]) < 0.0005)              # across the view: recovered
+    assert abs(left[1] - shift[1]) < 0.0005                    # along the view: not invented
+    assert reg.offset(0, 1)[0] > 0.4
+    assert (reg.observable >= 3).all()   # x, z and the turn about y at least (never y: along the views)
+
+
+def test_silhouettes_need_parallel_opposite_heads():
+    p, vd, head, true = scanned_cylinder(0.001)
+    q = p.copy()
+    q[head == 1] += [0.002, 0.0, 0.0]
+    spread = vd + np.random.default_rng(0).normal(0, 0.05, vd.shape)    # perspective-like rays
+    assert register_silhouettes(q, head, spread / np.linalg.norm(spread, axis=1)[:, None], PITCH).offset() == (0.0, 0.0)
+    same = np.where(head[:, None] == 0, vd, -vd)                          # both heads on one side
+    assert register_silhouettes(q, head, same, PITCH).offset() == (0.0, 0.0)
+    assert register_silhouettes(q, head, vd, PITCH).offset()[1] > 1.5     # opposite and parallel: moved

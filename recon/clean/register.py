@@ -11,7 +11,8 @@ Only where the heads really overlap (both measured the same surface, their point
 is the offset measured. Heads stacked in a tower overlap over tens of centimetres and are
 registered to a few hundredths of a degree; the paper's front and rear heads meet only along
 the silhouettes, seen edge on, where neither measures the surface beyond its own side: a head
-with less than ``min_overlap`` of its points in an overlap is left as it is. Directions of the
+with less than ``min_overlap`` of its points in an overlap is left as it is by `register_heads`;
+`register_silhouettes` registers such a pair by their common outline instead. Directions of the
 motion whose standard error exceeds ``max_error`` are not moved either (truncated Gauss-Newton on
 the eigenvectors of the normal matrix); `Registration` reports how many were estimated. The
 heads are moved symmetrically (their mean motion removed), so no head is taken as exact.
@@ -198,3 +199,117 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
         rot[h] = back @ rot[h]
         trans[h] = back @ (trans[h] - t_mean)
     return Registration(rot[:nh], trans[:nh], center, pairs, observable)
+
+
+def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, spacing: float,
+                         iterations: int = 30, min_points: int = 100, max_spread: float = 0.01,
+                         max_error: float = 5e-4) -> Registration:
+    """Estimate the offset between two opposite heads of parallel projection from their silhouettes.
+
+    Two heads looking along opposite directions ``a`` and ``-a`` with parallel projection see the
+    same occluding contour: the outline of the body's projection along ``a`` is the same from
+    both sides. A rigid offset between the heads moves one outline against the other: in the
+    plane across ``a``, the translation (x and z for front and rear heads) and the rotation
+    about ``a`` (about y) are measured, by a robust 2-D point-to-line ICP between the heads'
+    outline points. The other three motions (the translation along ``a`` and the rotations
+    about the two axes across it) move one head's points along the view, which the data cannot
+    tell from a thicker or thinner body: they are not estimated (``observable`` is 3).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    head : (n,) int
+        Head of each point; exactly two heads (0 and 1) are registered, otherwise nothing.
+    view_dir : (n, 3) float
+        Unit direction from each point toward its camera.
+    spacing : float
+        Median point spacing, metres (the outline's raster cell).
+    iterations : int
+        ICP steps at most.
+    min_points : int
+        Outline points of each head needed, at least.
+    max_spread : float
+        A head's view directions within this (RMS of the unit vectors' deviation from their
+        mean) count as parallel (perspective heads are left alone: their contours differ).
+
+    Returns
+    -------
+    Registration
+    """
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    head = np.asarray(head).astype(np.int64)
+    center = (points.min(axis=0) + points.max(axis=0)) / 2
+    none = Registration(np.repeat(np.eye(3)[None], 2, axis=0), np.zeros((2, 3)), center,
+                        np.zeros(2, dtype=int), np.zeros(2, dtype=int))
+    if len(head) == 0 or head.max() != 1 or np.ndim(view_dir) != 2:
+        return none
+    dirs = []
+    for h in range(2):
+        v = np.asarray(view_dir[head == h], dtype=np.float64)
+        m = v.mean(axis=0)
+        if len(v) < min_points or np.sqrt(((v - m) ** 2).sum(axis=1).mean()) > max_spread:
+            return none
+        dirs.append(m / np.linalg.norm(m))
+    if dirs[0] @ dirs[1] > -0.99:   # not opposite
+        return none
+    a = dirs[0] - dirs[1]
+    a /= np.linalg.norm(a)
+    up = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(up, a)
+    u /= np.linalg.norm(u)
+    basis = np.stack([u, np.cross(a, u)])          # (2, 3): across the view
+    q = (points - center) @ basis.T                # (n, 2)
+    # each head's outline: the boundary cells of its filled raster, and the points in them
+    lo = q.min(axis=0) - 2 * spacing
+    cell = np.floor((q - lo) / spacing).astype(np.int64)
+    shape = tuple(cell.max(axis=0) + 3)
+    outline = []
+    for h in range(2):
+        img = np.zeros(shape, dtype=bool)
+        img[tuple(cell[head == h].T)] = True
+        img = ndimage.binary_fill_holes(ndimage.binary_closing(img, iterations=2))
+        edge = img & ~ndimage.binary_erosion(img)
+        outline.append(np.flatnonzero((head == h) & edge[tuple(cell.T)]))
+    if min(len(o) for o in outline) < min_points:
+        return none
+    ref = q[outline[0]]
+    tree = cKDTree(ref)
+    _, nb = tree.query(ref, k=min(8, len(ref)))
+    d = ref[nb] - ref[nb].mean(axis=1, keepdims=True)
+    normal = np.linalg.eigh(np.swapaxes(d, 1, 2) @ d)[1][:, :, 0] @ basis   # (m, 3): across the outline
+    p0 = points[outline[1]] - center
+    r_1, t_1 = np.eye(3), np.zeros(3)
+    limit = 3 * spacing
+    keep = np.zeros(6, dtype=bool)
+    for _ in range(iterations):
+        p = p0 @ r_1.T + t_1
+        dist, j = tree.query(p @ basis.T)
+        ok = dist < limit
+        if ok.sum() < min_points:
+            return none
+        p, n = p[ok], normal[j[ok]]
+        res = np.einsum("ij,ij->i", p @ basis.T - ref[j[ok]], n @ basis.T)
+        scale = robust_scale(res, floor=1e-5)
+        u_ = res / (TUKEY * scale)
+        w = np.where(np.abs(u_) < 1, (1 - u_ * u_) ** 2, 0.0)
+        J = np.column_stack([np.cross(p, n), n])
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * res)
+        lam, vec = np.linalg.eigh(H)
+        # standard errors at the residuals' scale, at most the outline's own resolution (a cell's
+        # uniform spread): the residuals of a wrong start would hide the directions that correct them
+        keep = min(scale, spacing / np.sqrt(12)) / np.sqrt(np.maximum(lam, 1e-300)) < max_error
+        step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
+        dr = rotvec(step[:3])
+        r_1, t_1 = dr @ r_1, dr @ t_1 + step[3:]
+        limit = max(4 * scale + spacing, 0.7 * limit)
+        if np.abs(step).max() < 1e-7:
+            break
+    # head 1's correction about the centre, split symmetrically between the heads
+    half = rotvec(_log_rotation(r_1) / 2)
+    rot = np.stack([half.T, half])
+    trans = np.stack([-t_1 / 2, t_1 / 2])
+    pairs = np.array([len(outline[0]), int(ok.sum())])
+    return Registration(rot, trans, center, pairs, np.full(2, int(keep.sum())))
