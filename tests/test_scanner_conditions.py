@@ -168,6 +168,24 @@ def test_opposite_heads_are_registered_by_their_silhouettes():
     assert (reg.observable >= 3).all()   # x, z and the turn about y at least (never y: along the views)
 
 
+def test_heads_sampled_out_of_phase_are_not_moved():
+    # an ellipsoid's front and rear halves, the rear sampled on a grid half a cell off the
+    # front's, with no offset between the heads: the outlines differ by the sampling alone
+    a, b, c = 0.2, 0.15, 0.8
+    parts = []
+    for phase, side in ((0.0, -1.0), (0.5, 1.0)):
+        g = np.arange(-1.0, 1.0, PITCH) + phase * PITCH
+        X, Z = (v.ravel() for v in np.meshgrid(g, g))
+        inside = (X / a) ** 2 + (Z / c) ** 2 < 1
+        X, Z = X[inside], Z[inside]
+        parts.append(np.column_stack([X, side * b * np.sqrt(1 - (X / a) ** 2 - (Z / c) ** 2), Z]))
+    p = np.concatenate(parts)
+    head = np.repeat([0, 1], [len(parts[0]), len(parts[1])])
+    vd = np.where(head[:, None] == 0, [0.0, -1.0, 0.0], [0.0, 1.0, 0.0])
+    angle, mm = register_silhouettes(p, head, vd, spacing=PITCH).offset(0, 1)
+    assert angle < 0.05 and mm < 0.5
+
+
 def test_silhouettes_need_parallel_opposite_heads():
     p, vd, head, true = scanned_cylinder(0.001)
     q = p.copy()

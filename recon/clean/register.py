@@ -201,6 +201,10 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
     return Registration(rot[:nh], trans[:nh], center, pairs, observable)
 
 
+#: Outline points of each line of `register_silhouettes`' outline.
+OUTLINE_LINE = 8
+
+
 def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, spacing: float,
                          iterations: int = 30, min_points: int = 100, max_spread: float = 0.01,
                          max_error: float = 5e-4) -> Registration:
@@ -276,8 +280,11 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         return none
     ref = q[outline[0]]
     tree = cKDTree(ref)
-    _, nb = tree.query(ref, k=min(8, len(ref)))
-    d = ref[nb] - ref[nb].mean(axis=1, keepdims=True)
+    # the outline as lines through its points' neighbourhoods (not the points: on a scan's grid
+    # the outline is a staircase, and point pairs would lock one head's grid onto the other's)
+    _, nb = tree.query(ref, k=min(OUTLINE_LINE, len(ref)))
+    mid = ref[nb].mean(axis=1)
+    d = ref[nb] - mid[:, None]
     normal = np.linalg.eigh(np.swapaxes(d, 1, 2) @ d)[1][:, :, 0] @ basis   # (m, 3): across the outline
     p0 = points[outline[1]] - center
     r_1, t_1 = np.eye(3), np.zeros(3)
@@ -290,7 +297,7 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         if ok.sum() < min_points:
             return none
         p, n = p[ok], normal[j[ok]]
-        res = np.einsum("ij,ij->i", p @ basis.T - ref[j[ok]], n @ basis.T)
+        res = np.einsum("ij,ij->i", p @ basis.T - mid[j[ok]], n @ basis.T)
         scale = robust_scale(res, floor=1e-5)
         u_ = res / (TUKEY * scale)
         w = np.where(np.abs(u_) < 1, (1 - u_ * u_) ** 2, 0.0)
