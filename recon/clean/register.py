@@ -214,10 +214,15 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     same occluding contour: the outline of the body's projection along ``a`` is the same from
     both sides. A rigid offset between the heads moves one outline against the other: in the
     plane across ``a``, the translation (x and z for front and rear heads) and the rotation
-    about ``a`` (about y) are measured, by a robust 2-D point-to-line ICP between the heads'
-    outline points. The other three motions (the translation along ``a`` and the rotations
-    about the two axes across it) move one head's points along the view, which the data cannot
-    tell from a thicker or thinner body: they are not estimated (``observable`` is 3).
+    about ``a`` (about y) are measured, by a robust point-to-line ICP between the heads' outlines
+    in that plane (each front outline point stands for the line through its `OUTLINE_LINE`
+    nearest: on a scan's grid the outline is a staircase, and points paired with points would
+    lock one head's grid onto the other's), truncated like `register_heads` to the motions whose
+    standard error is below ``max_error``. The translation along ``a`` moves one head's points
+    along the view, which the data cannot tell from a thicker or thinner body: it is never
+    estimated; the rotations about the two axes across ``a`` mostly do the same, and move the
+    outline only by its points' depth times the angle, so they are estimated only where that
+    is measurable (``observable`` says how many of the 6 were).
 
     Parameters
     ----------
@@ -235,6 +240,9 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     max_spread : float
         A head's view directions within this (RMS of the unit vectors' deviation from their
         mean) count as parallel (perspective heads are left alone: their contours differ).
+    max_error : float
+        A motion direction is estimated only when its standard error is below this, metres (a
+        rotation's at 1 m), at the residuals' scale but at most a cell's (spacing / sqrt 12).
 
     Returns
     -------
