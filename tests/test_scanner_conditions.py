@@ -186,12 +186,15 @@ def test_heads_sampled_out_of_phase_are_not_moved():
     assert angle < 0.05 and mm < 0.5
 
 
-def test_silhouettes_need_parallel_opposite_heads():
-    p, vd, head, true = scanned_cylinder(0.001)
+def test_silhouettes_need_heads_facing_each_other():
+    p, vd, head, true = scanned_cylinder(0.001, radius=0.15, height=1.6)
     q = p.copy()
     q[head == 1] += [0.002, 0.0, 0.0]
-    spread = vd + np.random.default_rng(0).normal(0, 0.05, vd.shape)    # perspective-like rays
-    assert register_silhouettes(q, head, spread / np.linalg.norm(spread, axis=1)[:, None], PITCH).offset() == (0.0, 0.0)
     same = np.where(head[:, None] == 0, vd, -vd)                          # both heads on one side
     assert register_silhouettes(q, head, same, PITCH).offset() == (0.0, 0.0)
-    assert register_silhouettes(q, head, vd, PITCH).offset()[1] > 1.5     # opposite and parallel: moved
+    side = np.where(head[:, None] == 0, vd, [1.0, 0.0, 0.0])              # at right angles
+    assert register_silhouettes(q, head, side, PITCH).offset() == (0.0, 0.0)
+    rays = vd + np.random.default_rng(0).normal(0, 0.05, vd.shape)        # perspective-like rays
+    rays /= np.linalg.norm(rays, axis=1)[:, None]
+    angle, mm = register_silhouettes(q, head, rays, PITCH).offset()
+    assert angle < 0.05 and abs(mm - 2.0) < 0.3                           # facing each other: moved back

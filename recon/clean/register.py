@@ -206,23 +206,22 @@ OUTLINE_LINE = 8
 
 
 def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, spacing: float,
-                         iterations: int = 30, min_points: int = 100, max_spread: float = 0.01,
-                         max_error: float = 5e-4) -> Registration:
-    """Estimate the offset between two opposite heads of parallel projection from their silhouettes.
+                         iterations: int = 30, min_points: int = 100, max_error: float = 5e-4) -> Registration:
+    """Estimate the offset between two opposite heads from their silhouettes.
 
-    Two heads looking along opposite directions ``a`` and ``-a`` with parallel projection see the
-    same occluding contour: the outline of the body's projection along ``a`` is the same from
-    both sides. A rigid offset between the heads moves one outline against the other: in the
-    plane across ``a``, the translation (x and z for front and rear heads) and the rotation
-    about ``a`` (about y) are measured, by a robust point-to-line ICP between the heads' outlines
-    in that plane (each front outline point stands for the line through its `OUTLINE_LINE`
-    nearest: on a scan's grid the outline is a staircase, and points paired with points would
-    lock one head's grid onto the other's), truncated like `register_heads` to the motions whose
-    standard error is below ``max_error``. The translation along ``a`` moves one head's points
-    along the view, which the data cannot tell from a thicker or thinner body: it is never
-    estimated; the rotations about the two axes across ``a`` mostly do the same, and move the
-    outline only by its points' depth times the angle, so they are estimated only where that
-    is measurable (``observable`` says how many of the 6 were).
+    Two heads looking along opposite directions ``a`` and ``-a`` see the same occluding contour
+    (exactly with parallel projection; with perspective from afar, nearly): the outline of the
+    body's projection along ``a`` is the same from both sides. A rigid offset between the heads
+    moves one outline against the other: the translation across ``a`` (x and z for front and rear
+    heads) and the rotation about ``a`` (about y) are measured, by a robust point-to-line ICP
+    between the heads' outlines in the plane across ``a`` (each front outline point stands for
+    the line through its `OUTLINE_LINE` nearest: on a scan's grid the outline is a staircase,
+    and points paired with points would lock one head's grid onto the other's), truncated like
+    `register_heads` to the motions whose standard error is below ``max_error``. The other three
+    motions are not estimated: the translation along ``a`` moves one head's points along the
+    view, which the data cannot tell from a thicker or thinner body, and so do the rotations
+    about the axes across ``a``, but for a shift of the outline by its points' depth times the
+    angle, smaller than the contours' own differences (perspective) or the outline's staircase.
 
     Parameters
     ----------
@@ -237,9 +236,6 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         ICP steps at most.
     min_points : int
         Outline points of each head needed, at least.
-    max_spread : float
-        A head's view directions within this (RMS of the unit vectors' deviation from their
-        mean) count as parallel (perspective heads are left alone: their contours differ).
     max_error : float
         A motion direction is estimated only when its standard error is below this, metres (a
         rotation's at 1 m), at the residuals' scale but at most a cell's (spacing / sqrt 12).
@@ -259,14 +255,13 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         return none
     dirs = []
     for h in range(2):
-        v = np.asarray(view_dir[head == h], dtype=np.float64)
-        m = v.mean(axis=0)
-        if len(v) < min_points or np.sqrt(((v - m) ** 2).sum(axis=1).mean()) > max_spread:
+        m = np.asarray(view_dir[head == h], dtype=np.float64).sum(axis=0)
+        if (head == h).sum() < min_points:
             return none
         dirs.append(m / np.linalg.norm(m))
-    if dirs[0] @ dirs[1] > -0.99:   # not opposite
-        return none
     a = dirs[0] - dirs[1]
+    if np.linalg.norm(a) < 1.8:   # not facing each other (the views within 50 degrees of opposite)
+        return none
     a /= np.linalg.norm(a)
     up = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
     u = np.cross(up, a)
@@ -274,7 +269,7 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     basis = np.stack([u, np.cross(a, u)])          # (2, 3): across the view
     q = (points - center) @ basis.T                # (n, 2)
     # each head's outline: the boundary cells of its filled raster, and the points in them
-    lo = q.min(axis=0) - 2 * spacing
+    lo = q.min(axis=0) - 2.5 * spacing
     cell = np.floor((q - lo) / spacing).astype(np.int64)
     shape = tuple(cell.max(axis=0) + 3)
     outline = []
@@ -295,6 +290,10 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     d = ref[nb] - mid[:, None]
     normal = np.linalg.eigh(np.swapaxes(d, 1, 2) @ d)[1][:, :, 0] @ basis   # (m, 3): across the outline
     p0 = points[outline[1]] - center
+    # (3, 6): the motions estimated, as (rotation vector, translation): the turn about a and the
+    # shifts across it; the rest moves the points mostly along the views (see above)
+    motions = np.zeros((3, 6))
+    motions[0, :3], motions[1, 3:], motions[2, 3:] = a, basis[0], basis[1]
     r_1, t_1 = np.eye(3), np.zeros(3)
     limit = 3 * spacing
     keep = np.zeros(6, dtype=bool)
@@ -309,14 +308,14 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         scale = robust_scale(res, floor=1e-5)
         u_ = res / (TUKEY * scale)
         w = np.where(np.abs(u_) < 1, (1 - u_ * u_) ** 2, 0.0)
-        J = np.column_stack([np.cross(p, n), n])
+        J = np.column_stack([np.cross(p, n), n]) @ motions.T    # the rotation about a, the shifts across
         H = J.T @ (w[:, None] * J)
         g = J.T @ (w * res)
         lam, vec = np.linalg.eigh(H)
         # standard errors at the residuals' scale, at most the outline's own resolution (a cell's
         # uniform spread): the residuals of a wrong start would hide the directions that correct them
         keep = min(scale, spacing / np.sqrt(12)) / np.sqrt(np.maximum(lam, 1e-300)) < max_error
-        step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
+        step = motions.T @ (-vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep]))
         dr = rotvec(step[:3])
         r_1, t_1 = dr @ r_1, dr @ t_1 + step[3:]
         limit = max(4 * scale + spacing, 0.7 * limit)
