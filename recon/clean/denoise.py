@@ -145,11 +145,11 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
     return LocalFit(normal, resid, center, frame, size, coef)
 
 
-def _sample(m: int) -> np.ndarray:
-    """Sorted seeded sample of at most `SAMPLE` of ``m`` indices (all when fewer)."""
-    if m <= SAMPLE:
+def _sample(m: int, size: int = SAMPLE) -> np.ndarray:
+    """Sorted seeded sample of at most ``size`` of ``m`` indices (all when fewer)."""
+    if m <= size:
         return np.arange(m)
-    return np.sort(np.random.default_rng(0).choice(m, SAMPLE, replace=False))
+    return np.sort(np.random.default_rng(0).choice(m, size, replace=False))
 
 
 def _map(function, items, workers: int) -> list:
@@ -239,7 +239,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
         Neighbours of each fit (the point itself left out).
     z : float
         Threshold in robust scales of the leave-one-out residuals (the scale: over a seeded
-        sample of `SAMPLE` points; only the isolated points are tested).
+        sample of 4 x `SAMPLE` points; only the isolated points are tested).
     floor : float
         Threshold at least this many spacings (a noise-free cloud's fits are nearly exact: without
         a floor its fingers and silhouettes would go).
@@ -268,7 +268,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     # only isolated points can be outliers: fit those, and a sample of all for the scale
     alone = tree.query(points, k=2, workers=workers)[0][:, 1] > isolation * spacing
     sample = np.zeros(n, dtype=bool)
-    sample[_sample(n)] = True
+    sample[_sample(n, 4 * SAMPLE)] = True
     rows = np.flatnonzero(alone | sample)
     nb = tree.query(points[rows], k=k + 1, workers=workers)[1][:, 1:]
     fit = local_fits(points, points[rows], nb, workers=workers)
@@ -359,7 +359,8 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         tree = cKDTree(sub)
         if share <= 0:
             d, nb = tree.query(sub, k=k)
-            return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
+            fit = local_fits(sub, sub, nb, distance=d, radius=radius)
+            return idx, d[:, 1] > isolation * spacing, fit, fit.residual
         far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
         thin = _thin(sub, min(share * spacing, radius / 2))
@@ -368,18 +369,18 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         fit = local_fits(sub, sub[centres], nb, distance=d, radius=radius)
         near = cKDTree(sub[centres]).query(sub, k=min(BLEND, len(centres)))[1].reshape(len(sub), -1)
         near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
-        return idx, far, fit.at(sub, near)
+        return idx, far, fit.at(sub, near), fit.residual   # the scale: from each fit at its own centre
 
     fits = []
     for done in _map(section, range(member.shape[1]), workers):
         if done is not None:
-            idx, far, fit = done
+            idx, far, fit, own = done
             alone[idx] &= far
-            fits.append((idx, fit))
+            fits.append((idx, fit, own))
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
-    scale = robust_scale(np.concatenate([f.residual for _, f in fits]))
-    for idx, f in fits:
+    scale = robust_scale(np.concatenate([own for _, _, own in fits]))
+    for idx, f, _ in fits:
         r = np.clip(f.residual, -clamp * scale, clamp * scale)
         np.add.at(shift, idx, -r[:, None] * f.normal)
         np.add.at(count, idx, 1.0)
