@@ -63,7 +63,9 @@ class LocalFit:
         point's ``b`` fits (their normals oriented alike): normal and residual of each point."""
         loc = np.einsum("nbdj,nbd->nbj", self.frame[which], points[:, None] - self.center[which])
         xy = loc[..., :2] / self.size[which][..., None]
-        height = (_monomials(xy[..., 0], xy[..., 1])[:, :6] * np.swapaxes(self.beta[which], 1, 2)).sum(axis=1)
+        x, y = xy[..., 0], xy[..., 1]
+        b = self.beta[which]
+        height = b[..., 0] + x * (b[..., 1] + x * b[..., 3] + y * b[..., 4]) + y * (b[..., 2] + y * b[..., 5])
         r = loc[..., 2] - height
         nrm = self.normal[which]
         flip = np.where(np.einsum("nbd,nd->nb", nrm, nrm[:, 0]) < 0, -1.0, 1.0)
@@ -239,7 +241,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
         Neighbours of each fit (the point itself left out).
     z : float
         Threshold in robust scales of the leave-one-out residuals (the scale: over a seeded
-        sample of 4 x `SAMPLE` points; only the isolated points are tested).
+        sample of 2 x `SAMPLE` points; only the isolated points are tested).
     floor : float
         Threshold at least this many spacings (a noise-free cloud's fits are nearly exact: without
         a floor its fingers and silhouettes would go).
@@ -268,7 +270,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     # only isolated points can be outliers: fit those, and a sample of all for the scale
     alone = tree.query(points, k=2, workers=workers)[0][:, 1] > isolation * spacing
     sample = np.zeros(n, dtype=bool)
-    sample[_sample(n, 4 * SAMPLE)] = True
+    sample[_sample(n, 2 * SAMPLE)] = True
     rows = np.flatnonzero(alone | sample)
     nb = tree.query(points[rows], k=k + 1, workers=workers)[1][:, 1:]
     fit = local_fits(points, points[rows], nb, workers=workers)
