@@ -554,7 +554,7 @@ class CleanParams:
     denoise_radius: float = field(default=0.02, metadata={
         "help": "points of each denoising fit lie within this distance (at least 10 of them)",
         "unit": "m", "range": (0.0, None)})
-    denoise_share: float = field(default=2.0, metadata={
+    denoise_share: float = field(default=3.0, metadata={
         "help": "denoising fits only at one point per cube of this many point spacings, each point "
                 "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
         "range": (0.0, None)})

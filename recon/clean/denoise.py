@@ -312,7 +312,7 @@ class Denoised:
 
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02, workers: int = 1, share: float = 2.0) -> Denoised:
+            radius: float = 0.02, workers: int = 1, share: float = 3.0) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -361,8 +361,7 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         tree = cKDTree(sub)
         if share <= 0:
             d, nb = tree.query(sub, k=k)
-            fit = local_fits(sub, sub, nb, distance=d, radius=radius)
-            return idx, d[:, 1] > isolation * spacing, fit, fit.residual
+            return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
         far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
         thin = _thin(sub, min(share * spacing, radius / 2))
@@ -371,18 +370,18 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         fit = local_fits(sub, sub[centres], nb, distance=d, radius=radius)
         near = cKDTree(sub[centres]).query(sub, k=min(BLEND, len(centres)))[1].reshape(len(sub), -1)
         near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
-        return idx, far, fit.at(sub, near), fit.residual   # the scale: from each fit at its own centre
+        return idx, far, fit.at(sub, near)
 
     fits = []
     for done in _map(section, range(member.shape[1]), workers):
         if done is not None:
-            idx, far, fit, own = done
+            idx, far, fit = done
             alone[idx] &= far
-            fits.append((idx, fit, own))
+            fits.append((idx, fit))
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
-    scale = robust_scale(np.concatenate([own for _, _, own in fits]))
-    for idx, f, _ in fits:
+    scale = robust_scale(np.concatenate([f.residual for _, f in fits]))
+    for idx, f in fits:
         r = np.clip(f.residual, -clamp * scale, clamp * scale)
         np.add.at(shift, idx, -r[:, None] * f.normal)
         np.add.at(count, idx, 1.0)
