@@ -554,11 +554,16 @@ class CleanParams:
     denoise_radius: float = field(default=0.02, metadata={
         "help": "points of each denoising fit lie within this distance (at least 10 of them)",
         "unit": "m", "range": (0.0, None)})
+    denoise_share: float = field(default=3.0, metadata={
+        "help": "denoising fits only at one point per cube of this many point spacings, each point "
+                "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
+        "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={
-        "help": "correct the rigid offset between scanner heads by ICP on their overlap (needs the "
-                "head of each point)", "unit": "", "range": None})
+        "help": "correct the rigid offset between scanner heads: ICP on their overlap, or for two "
+                "opposite parallel heads their common silhouette (needs the head of each point)",
+        "unit": "", "range": None})
 
     def __post_init__(self):
         check_fields(self, ReconError)
@@ -569,6 +574,7 @@ class CleanParams:
         _check(int(self.denoise_neighbours) >= 10, "denoise_neighbours", self.denoise_neighbours,
                "an integer >= 10")
         _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
+        _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
         _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
 
 

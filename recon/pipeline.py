@@ -244,6 +244,10 @@ def _prepare(points, params, view_dir, head) -> Prepared:
             from .clean.register import register_heads
 
             reg = register_heads(points[keep], head[keep], spacing)
+            if not reg.observable.any() and view_dir is not None and np.ndim(view_dir) == 2:
+                from .clean.register import register_silhouettes  # opposite heads: no overlap
+
+                reg = register_silhouettes(points[keep], head[keep], view_dir[keep], spacing)
             points, view_dir = reg.apply(points, head, view_dir)
     return Prepared(points, view_dir, keep, reg)
 
@@ -379,7 +383,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         t0 = time.perf_counter()
         c = params.clean
         dn = denoise(p, meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
-                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers)
+                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
+                     c.denoise_share)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0

@@ -30,6 +30,10 @@ TUKEY = 4.685
 MIN_FIT = 10
 #: Query points fitted at a time (memory only: about 2 kB per neighbour).
 CHUNK = 20000
+#: Queries whose unweighted fits give the residual scale, at most (a seeded sample).
+SAMPLE = 5000
+#: Shared fits (`denoise` with ``share``) averaged per point.
+BLEND = 3
 
 
 @dataclass(frozen=True, eq=False)
@@ -42,10 +46,32 @@ class LocalFit:
         Unit normal of each local fit (the direction of least spread; sign arbitrary).
     residual : (m,) float
         Signed distance of the query point above its fitted surface along ``normal``, metres.
+    center, frame, size, beta : (m, 3), (m, 3, 3), (m,), (m, 6) float
+        The fits themselves, for `at`: each patch's centre, frame (columns: along, across,
+        ``normal``), size (the unit of x and y) and the quadratic's coefficients.
     """
 
     normal: np.ndarray
     residual: np.ndarray
+    center: np.ndarray | None = None
+    frame: np.ndarray | None = None
+    size: np.ndarray | None = None
+    beta: np.ndarray | None = None
+
+    def at(self, points: np.ndarray, which: np.ndarray) -> "LocalFit":
+        """The fits ``which`` (n, b) int evaluated at ``points`` (n, 3), averaged over each
+        point's ``b`` fits (their normals oriented alike): normal and residual of each point."""
+        loc = np.einsum("nbdj,nbd->nbj", self.frame[which], points[:, None] - self.center[which])
+        xy = loc[..., :2] / self.size[which][..., None]
+        x, y = xy[..., 0], xy[..., 1]
+        b = self.beta[which]
+        height = b[..., 0] + x * (b[..., 1] + x * b[..., 3] + y * b[..., 4]) + y * (b[..., 2] + y * b[..., 5])
+        r = loc[..., 2] - height
+        nrm = self.normal[which]
+        flip = np.where(np.einsum("nbd,nd->nb", nrm, nrm[:, 0]) < 0, -1.0, 1.0)
+        normal = (nrm * flip[..., None]).sum(axis=1)
+        normal /= np.linalg.norm(normal, axis=1)[:, None]
+        return LocalFit(normal, (r * flip).mean(axis=1))
 
 
 def robust_scale(residual: np.ndarray, floor: float = 1e-6) -> float:
@@ -86,28 +112,46 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
     m, k = neighbours.shape
     normal = np.zeros((m, 3))
     resid = np.zeros(m)
+    center, frame, size, coef = np.zeros((m, 3)), np.zeros((m, 3, 3)), np.ones(m), np.zeros((m, 6))
     if m == 0:
-        return LocalFit(normal, resid)
+        return LocalFit(normal, resid, center, frame, size, coef)
     if distance is None or not np.isfinite(radius):
         base = np.ones((m, k))
     else:
         base = ((distance <= radius) | (np.arange(k) < min_points)).astype(np.float64)
+    whole = beta0 = None
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
-        sample = np.random.default_rng(0).choice(m, min(m, 5000), replace=False)
-        A, z, beta, *_ = _frame(points[neighbours[sample]], query[sample], base[sample])
-        scale = robust_scale((z - _predict(beta, A))[base[sample] > 0])
+        sample = _sample(m)
+        if m <= CHUNK:  # one chunk: its frames and first fits serve the scale and the fits
+            whole = _Patch(points[neighbours], query, base)
+            beta0 = whole.fit(whole.w0)
+            res = (whole.z - whole.predict(beta0))[sample]
+        else:
+            sub = _Patch(points[neighbours[sample]], query[sample], base[sample])
+            res = sub.z - sub.predict(sub.fit(sub.w0))
+        scale = robust_scale(res[base[sample] > 0])
+
     def chunk(a):
-        w0 = base[a:a + CHUNK]
-        A, z, beta, aq, zq, normal[a:a + CHUNK] = _frame(points[neighbours[a:a + CHUNK]],
-                                                         query[a:a + CHUNK], w0)
+        f = whole if whole is not None else _Patch(points[neighbours[a:a + CHUNK]], query[a:a + CHUNK],
+                                                   base[a:a + CHUNK])
+        beta = beta0 if whole is not None else f.fit(f.w0)
         for _ in range(iterations):
-            u = (z - _predict(beta, A)) / (TUKEY * scale)
-            w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0) * w0
-            beta = _solve(A, z, w)
-        resid[a:a + CHUNK] = zq - np.einsum("mp,mp->m", aq, beta)
+            u = (f.z - f.predict(beta)) / (TUKEY * scale)
+            beta = f.fit(np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0) * f.w0)
+        normal[a:a + CHUNK] = f.normal
+        resid[a:a + CHUNK] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
+        center[a:a + CHUNK], frame[a:a + CHUNK], size[a:a + CHUNK] = f.center, f.frame, f.size
+        coef[a:a + CHUNK] = beta
 
     _map(chunk, range(0, m, CHUNK), workers)
-    return LocalFit(normal, resid)
+    return LocalFit(normal, resid, center, frame, size, coef)
+
+
+def _sample(m: int, size: int = SAMPLE) -> np.ndarray:
+    """Sorted seeded sample of at most ``size`` of ``m`` indices (all when fewer)."""
+    if m <= size:
+        return np.arange(m)
+    return np.sort(np.random.default_rng(0).choice(m, size, replace=False))
 
 
 def _map(function, items, workers: int) -> list:
@@ -121,51 +165,66 @@ def _map(function, items, workers: int) -> list:
         return list(pool.map(function, items))
 
 
-def _frame(nb: np.ndarray, q: np.ndarray, w: np.ndarray):
-    """Local frames of neighbourhoods ``nb`` (m, k, 3) with weights ``w`` (m, k) by weighted PCA;
-    the quadratic's design [1, x, y, x^2, xy, y^2] at the neighbours (m, k, 6) and at the queries
-    ``q`` (m, 6) in them, the heights, the weighted fit and the normals."""
-    sw = w.sum(axis=1)[:, None]
-    c = (nb * w[..., None]).sum(axis=1) / sw
-    d = nb - c[:, None]
-    _, vec = np.linalg.eigh(np.swapaxes(d * w[..., None], 1, 2) @ d)
-    vec = np.ascontiguousarray(vec[:, :, ::-1])  # columns: major, minor, normal
-    loc = d @ vec
-    ql = (vec.transpose(0, 2, 1) @ (q - c)[..., None])[..., 0]
-    # x, y in units of the neighbourhood's size, so that the damping of `_solve` is scale-free
-    s = np.sqrt(((loc[..., :2] ** 2).sum(axis=2) * w).sum(axis=1) / sw[:, 0])
-    s = np.where(s > 0, s, 1.0)
-    A = _design(loc[..., 0] / s[:, None], loc[..., 1] / s[:, None])
-    z = loc[..., 2]
-    return A, z, _solve(A, z, w), _design(ql[:, 0] / s, ql[:, 1] / s), ql[:, 2], vec[:, :, 2]
+#: Exponents (a, b) of the monomials x^a y^b of the quadratic's design [1, x, y, x^2, xy, y^2]
+#: first, then the rest of degree <= 4: the products of two design terms.
+_EXPONENTS = [(0, 0), (1, 0), (0, 1), (2, 0), (1, 1), (0, 2),
+              (3, 0), (2, 1), (1, 2), (0, 3), (4, 0), (3, 1), (2, 2), (1, 3), (0, 4)]
+#: Column of `_EXPONENTS` of the product of design terms i and j (the normal matrix's entry).
+_PRODUCT = np.array([[_EXPONENTS.index((a + c, b + d)) for (c, d) in _EXPONENTS[:6]]
+                     for (a, b) in _EXPONENTS[:6]])
 
 
-def _design(x, y):
-    out = np.empty(x.shape + (6,))
-    out[..., 0] = 1.0
-    out[..., 1] = x
-    out[..., 2] = y
-    np.multiply(x, x, out=out[..., 3])
-    np.multiply(x, y, out=out[..., 4])
-    np.multiply(y, y, out=out[..., 5])
+class _Patch:
+    """Neighbourhoods ``nb`` (m, k, 3) of queries ``q`` (m, 3) with base weights ``w0`` (m, k), in
+    their local frames (weighted PCA: x, y along the patch, z along the normal), with the
+    monomials of degree <= 4 of x, y at the neighbours, so that each weighted least-squares fit
+    of the quadratic is one weighted sum per monomial and a 6 x 6 solve."""
+
+    def __init__(self, nb: np.ndarray, q: np.ndarray, w0: np.ndarray):
+        sw = w0.sum(axis=1)[:, None]
+        c = np.einsum("mk,mkd->md", w0, nb) / sw
+        d = nb - c[:, None]
+        _, vec = np.linalg.eigh(np.swapaxes(d * w0[..., None], 1, 2) @ d)
+        vec = vec[:, :, ::-1]  # columns: major, minor, normal
+        loc = d @ vec
+        ql = np.einsum("mdj,md->mj", vec, q - c)
+        # x, y in units of the neighbourhood's size, so that the damping of `fit` is scale-free
+        s = np.sqrt(np.einsum("mk,mk->m", (loc[..., :2] ** 2).sum(axis=2), w0) / sw[:, 0])
+        s = np.where(s > 0, s, 1.0)
+        self.mono = _monomials(loc[..., 0] / s[:, None], loc[..., 1] / s[:, None])  # (m, 15, k)
+        self.z = np.ascontiguousarray(loc[..., 2])
+        self.w0 = w0
+        self.aq = _monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0]
+        self.zq = ql[:, 2]
+        self.normal = np.ascontiguousarray(vec[:, :, 2])
+        self.center, self.frame, self.size = c, vec, s
+
+    def fit(self, w: np.ndarray) -> np.ndarray:
+        """(m, 6) weighted least-squares quadratic coefficients for weights ``w`` (m, k), lightly
+        damped: a neighbourhood along a line, a finger's edge, gets the flattest fit instead of
+        a singular system."""
+        moments = (self.mono @ w[..., None])[..., 0]
+        ata = moments[:, _PRODUCT]
+        atz = (self.mono[:, :6] @ (w * self.z)[..., None])[..., 0]
+        tr = np.trace(ata, axis1=1, axis2=2)[:, None, None]
+        ata = ata + 1e-9 * tr * np.eye(6) + 1e-30 * np.eye(6)
+        return np.linalg.solve(ata, atz[..., None])[..., 0]
+
+    def predict(self, beta: np.ndarray) -> np.ndarray:
+        """(m, k) heights of the quadratics ``beta`` (m, 6) at the neighbours."""
+        return (beta[:, None, :] @ self.mono[:, :6])[:, 0]
+
+
+def _monomials(x, y):
+    """(m, 15, k): x^a y^b of ``x``, ``y`` (m, k) for the exponents of `_EXPONENTS`."""
+    out = np.empty((x.shape[0], len(_EXPONENTS), x.shape[1]))
+    out[:, 0] = 1.0
+    out[:, 1] = x
+    out[:, 2] = y
+    for i, (a, b) in enumerate(_EXPONENTS[3:], start=3):   # each one more factor x or y than an earlier one
+        j, f = (_EXPONENTS.index((a - 1, b)), x) if a else (_EXPONENTS.index((a, b - 1)), y)
+        np.multiply(out[:, j], f, out=out[:, i])
     return out
-
-
-def _predict(beta, A):
-    """(m, k) heights of the quadratics ``beta`` (m, 6) at the neighbours (design (m, k, 6))."""
-    return (A @ beta[..., None])[..., 0]
-
-
-def _solve(A, z, w):
-    """(m, 6) weighted least-squares quadratic coefficients from the design (m, k, 6), heights
-    (m, k) and weights (m, k) (None: all 1), lightly damped: a neighbourhood along a line, a
-    finger's edge, gets the flattest fit instead of a singular system."""
-    aw = np.swapaxes(A if w is None else A * w[..., None], 1, 2)
-    ata = aw @ A
-    atz = (aw @ z[..., None])[..., 0]
-    tr = np.trace(ata, axis1=1, axis2=2)[:, None, None]
-    ata = ata + 1e-9 * tr * np.eye(6) + 1e-30 * np.eye(6)
-    return np.linalg.solve(ata, atz[..., None])[..., 0]
 
 
 def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z: float = 5.0,
@@ -181,7 +240,8 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     neighbours : int
         Neighbours of each fit (the point itself left out).
     z : float
-        Threshold in robust scales of the leave-one-out residuals.
+        Threshold in robust scales of the leave-one-out residuals (the scale: over a seeded
+        sample of 2 x `SAMPLE` points; only the isolated points are tested).
     floor : float
         Threshold at least this many spacings (a noise-free cloud's fits are nearly exact: without
         a floor its fingers and silhouettes would go).
@@ -207,10 +267,25 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     if k < 6:
         return np.zeros(n, dtype=bool), 0.0
     tree = cKDTree(points) if tree is None else tree
-    d, nb = tree.query(points, k=k + 1, workers=workers)
-    fit = local_fits(points, points, nb[:, 1:], workers=workers)
-    scale = robust_scale(fit.residual)
-    return (np.abs(fit.residual) > max(z * scale, floor * spacing)) & (d[:, 1] > isolation * spacing), scale
+    # only isolated points can be outliers: fit those, and a sample of all for the scale
+    alone = tree.query(points, k=2, workers=workers)[0][:, 1] > isolation * spacing
+    sample = np.zeros(n, dtype=bool)
+    sample[_sample(n, 2 * SAMPLE)] = True
+    rows = np.flatnonzero(alone | sample)
+    nb = tree.query(points[rows], k=k + 1, workers=workers)[1][:, 1:]
+    fit = local_fits(points, points[rows], nb, workers=workers)
+    scale = robust_scale(fit.residual[sample[rows]])
+    outlier = np.zeros(n, dtype=bool)
+    outlier[rows] = (np.abs(fit.residual) > max(z * scale, floor * spacing)) & alone[rows]
+    return outlier, scale
+
+
+def _thin(points: np.ndarray, cube: float) -> np.ndarray:
+    """Sorted indices of one point (the first) per occupied cube of edge ``cube`` (points (n, 3))."""
+    cell = np.floor((points - points.min(axis=0)) / cube).astype(np.int64)
+    dims = cell.max(axis=0) + 1
+    key = (cell[:, 0] * dims[1] + cell[:, 1]) * dims[2] + cell[:, 2]
+    return np.sort(np.unique(key, return_index=True)[1])
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,7 +312,7 @@ class Denoised:
 
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02, workers: int = 1) -> Denoised:
+            radius: float = 0.02, workers: int = 1, share: float = 3.0) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -259,6 +334,11 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         Outlier test, as in `reject_outliers` (the nearest point of the same section counts).
     workers : int
         Threads fitting sections at the same time (speed only).
+    share : float
+        Fit only at one point per cube of this many spacings (at most ``radius / 2``; 0: at
+        every point); every point is then moved by the mean of its `BLEND` nearest fits (a fit
+        spans ``neighbours`` points, a cube a few: the fits overlap, and their mean is smoother
+        than one fit per point). Isolated points (see ``isolation``) get a fit of their own.
 
     Returns
     -------
@@ -278,8 +358,19 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         if k < 10:
             return None
         sub = points[idx]
-        d, nb = cKDTree(sub).query(sub, k=k)
-        return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
+        tree = cKDTree(sub)
+        if share <= 0:
+            d, nb = tree.query(sub, k=k)
+            return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
+        far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
+        # a fit centred on each isolated point (it is tested as an outlier on its own fit)
+        thin = _thin(sub, min(share * spacing, radius / 2))
+        centres = np.concatenate([thin[~far[thin]], np.flatnonzero(far)])
+        d, nb = tree.query(sub[centres], k=k)
+        fit = local_fits(sub, sub[centres], nb, distance=d, radius=radius)
+        near = cKDTree(sub[centres]).query(sub, k=min(BLEND, len(centres)))[1].reshape(len(sub), -1)
+        near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
+        return idx, far, fit.at(sub, near)
 
     fits = []
     for done in _map(section, range(member.shape[1]), workers):

@@ -11,7 +11,8 @@ Only where the heads really overlap (both measured the same surface, their point
 is the offset measured. Heads stacked in a tower overlap over tens of centimetres and are
 registered to a few hundredths of a degree; the paper's front and rear heads meet only along
 the silhouettes, seen edge on, where neither measures the surface beyond its own side: a head
-with less than ``min_overlap`` of its points in an overlap is left as it is. Directions of the
+with less than ``min_overlap`` of its points in an overlap is left as it is by `register_heads`;
+`register_silhouettes` registers such a pair by their common outline instead. Directions of the
 motion whose standard error exceeds ``max_error`` are not moved either (truncated Gauss-Newton on
 the eigenvectors of the normal matrix); `Registration` reports how many were estimated. The
 heads are moved symmetrically (their mean motion removed), so no head is taken as exact.
@@ -198,3 +199,131 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
         rot[h] = back @ rot[h]
         trans[h] = back @ (trans[h] - t_mean)
     return Registration(rot[:nh], trans[:nh], center, pairs, observable)
+
+
+#: Outline points of each line of `register_silhouettes`' outline.
+OUTLINE_LINE = 8
+
+
+def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndarray, spacing: float,
+                         iterations: int = 30, min_points: int = 100, max_error: float = 5e-4) -> Registration:
+    """Estimate the offset between two opposite heads from their silhouettes.
+
+    Two heads looking along opposite directions ``a`` and ``-a`` see the same occluding contour
+    (exactly with parallel projection; with perspective from afar, nearly): the outline of the
+    body's projection along ``a`` is the same from both sides. A rigid offset between the heads
+    moves one outline against the other: the translation across ``a`` (x and z for front and rear
+    heads) and the rotation about ``a`` (about y) are measured, by a robust point-to-line ICP
+    between the heads' outlines in the plane across ``a`` (each front outline point stands for
+    the line through its `OUTLINE_LINE` nearest: on a scan's grid the outline is a staircase,
+    and points paired with points would lock one head's grid onto the other's), truncated like
+    `register_heads` to the motions whose standard error is below ``max_error``. The other three
+    motions are not estimated: the translation along ``a`` moves one head's points along the
+    view, which the data cannot tell from a thicker or thinner body, and so do the rotations
+    about the axes across ``a``, but for a shift of the outline by its points' depth times the
+    angle, smaller than the contours' own differences (perspective) or the outline's staircase.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    head : (n,) int
+        Head of each point; exactly two heads (0 and 1) are registered, otherwise nothing.
+    view_dir : (n, 3) float
+        Unit direction from each point toward its camera.
+    spacing : float
+        Median point spacing, metres (the outline's raster cell).
+    iterations : int
+        ICP steps at most.
+    min_points : int
+        Outline points of each head needed, at least.
+    max_error : float
+        A motion direction is estimated only when its standard error is below this, metres (a
+        rotation's at 1 m), at the residuals' scale but at most a cell's (spacing / sqrt 12).
+
+    Returns
+    -------
+    Registration
+    """
+    from scipy import ndimage
+    from scipy.spatial import cKDTree
+
+    head = np.asarray(head).astype(np.int64)
+    center = (points.min(axis=0) + points.max(axis=0)) / 2
+    none = Registration(np.repeat(np.eye(3)[None], 2, axis=0), np.zeros((2, 3)), center,
+                        np.zeros(2, dtype=int), np.zeros(2, dtype=int))
+    if len(head) == 0 or head.max() != 1 or np.ndim(view_dir) != 2:
+        return none
+    dirs = []
+    for h in range(2):
+        m = np.asarray(view_dir[head == h], dtype=np.float64).sum(axis=0)
+        if (head == h).sum() < min_points:
+            return none
+        dirs.append(m / np.linalg.norm(m))
+    a = dirs[0] - dirs[1]
+    if np.linalg.norm(a) < 1.8:   # not facing each other (the views within 50 degrees of opposite)
+        return none
+    a /= np.linalg.norm(a)
+    up = np.array([0.0, 0.0, 1.0]) if abs(a[2]) < 0.9 else np.array([1.0, 0.0, 0.0])
+    u = np.cross(up, a)
+    u /= np.linalg.norm(u)
+    basis = np.stack([u, np.cross(a, u)])          # (2, 3): across the view
+    q = (points - center) @ basis.T                # (n, 2)
+    # each head's outline: the boundary cells of its filled raster, and the points in them
+    lo = q.min(axis=0) - 2.5 * spacing
+    cell = np.floor((q - lo) / spacing).astype(np.int64)
+    shape = tuple(cell.max(axis=0) + 3)
+    outline = []
+    for h in range(2):
+        img = np.zeros(shape, dtype=bool)
+        img[tuple(cell[head == h].T)] = True
+        img = ndimage.binary_fill_holes(ndimage.binary_closing(img, iterations=2))
+        edge = img & ~ndimage.binary_erosion(img)
+        outline.append(np.flatnonzero((head == h) & edge[tuple(cell.T)]))
+    if min(len(o) for o in outline) < min_points:
+        return none
+    ref = q[outline[0]]
+    tree = cKDTree(ref)
+    # the outline as lines through its points' neighbourhoods (not the points: on a scan's grid
+    # the outline is a staircase, and point pairs would lock one head's grid onto the other's)
+    _, nb = tree.query(ref, k=min(OUTLINE_LINE, len(ref)))
+    mid = ref[nb].mean(axis=1)
+    d = ref[nb] - mid[:, None]
+    normal = np.linalg.eigh(np.swapaxes(d, 1, 2) @ d)[1][:, :, 0] @ basis   # (m, 3): across the outline
+    p0 = points[outline[1]] - center
+    # (3, 6): the motions estimated, as (rotation vector, translation): the turn about a and the
+    # shifts across it; the rest moves the points mostly along the views (see above)
+    motions = np.zeros((3, 6))
+    motions[0, :3], motions[1, 3:], motions[2, 3:] = a, basis[0], basis[1]
+    r_1, t_1 = np.eye(3), np.zeros(3)
+    limit = 3 * spacing
+    keep = np.zeros(6, dtype=bool)
+    for _ in range(iterations):
+        p = p0 @ r_1.T + t_1
+        dist, j = tree.query(p @ basis.T)
+        ok = dist < limit
+        if ok.sum() < min_points:
+            return none
+        p, n = p[ok], normal[j[ok]]
+        res = np.einsum("ij,ij->i", p @ basis.T - mid[j[ok]], n @ basis.T)
+        scale = robust_scale(res, floor=1e-5)
+        u_ = res / (TUKEY * scale)
+        w = np.where(np.abs(u_) < 1, (1 - u_ * u_) ** 2, 0.0)
+        J = np.column_stack([np.cross(p, n), n]) @ motions.T    # the rotation about a, the shifts across
+        H = J.T @ (w[:, None] * J)
+        g = J.T @ (w * res)
+        lam, vec = np.linalg.eigh(H)
+        # standard errors at the residuals' scale, at most the outline's own resolution (a cell's
+        # uniform spread): the residuals of a wrong start would hide the directions that correct them
+        keep = min(scale, spacing / np.sqrt(12)) / np.sqrt(np.maximum(lam, 1e-300)) < max_error
+        step = motions.T @ (-vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep]))
+        dr = rotvec(step[:3])
+        r_1, t_1 = dr @ r_1, dr @ t_1 + step[3:]
+        limit = max(4 * scale + spacing, 0.7 * limit)
+        if np.abs(step).max() < 1e-7:
+            break
+    # head 1's correction about the centre, split symmetrically between the heads
+    half = rotvec(_log_rotation(r_1) / 2)
+    rot = np.stack([half.T, half])
+    trans = np.stack([-t_1 / 2, t_1 / 2])
+    pairs = np.array([len(outline[0]), int(ok.sum())])
+    return Registration(rot, trans, center, pairs, np.full(2, int(keep.sum())))
