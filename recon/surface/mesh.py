@@ -133,9 +133,13 @@ def _delaunay(uv):
     from scipy.spatial import Delaunay, QhullError
 
     try:
-        return Delaunay(np.ascontiguousarray(uv, dtype=np.float64)).simplices
+        simp = Delaunay(np.ascontiguousarray(uv, dtype=np.float64)).simplices
     except (QhullError, ValueError):  # all points collinear or coincident
         return None
+    # Qhull's point at infinity (option Qz, scipy's default) can leak into the triangles of a few
+    # degenerate points (seen: 6 points of a cap, index 6): no such triangle is a surface
+    simp = simp[(simp < len(uv)).all(axis=1)]
+    return simp if len(simp) else None
 
 
 def column_chart(theta: np.ndarray, h: np.ndarray, radius: float, seam_overlap: float):
