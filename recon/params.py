@@ -479,6 +479,10 @@ class SurfaceParams:
         "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
                 "dense scans keep their seen surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
+    peel_same_side: float = field(default=0.9, metadata={
+        "help": "the boundary peel measures a triangle whose vertices were seen from one side (their "
+                "mean viewing direction at least this long) across the view, as the camera saw it "
+                "(above 1 = in 3D)", "unit": "", "range": (0.0, 2.0)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own, joined to their section (False: the paper)",
@@ -489,8 +493,8 @@ class SurfaceParams:
     far_join: float = field(default=3.0, metadata={
         "help": "meshed points within this of a far part join its chart", "unit": "spacings",
         "range": (0.0, None)})
-    far_max_edge: float = field(default=3.0, metadata={
-        "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
+    far_max_edge: float = field(default=4.0, metadata={
+        "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     close_voxel: float = field(default=0.008, metadata={
         "help": "proposed-closed: grid step of the closed surface (recon.surface.complete.closed_surface)",
@@ -909,7 +913,7 @@ PAPER = {
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
-    "far_charts": False, "hull_edge_min": 0.0,
+    "far_charts": False, "hull_edge_min": 0.0, "peel_same_side": 2.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

@@ -359,3 +359,39 @@ def test_median_spacing_skips_repeated_points():
     P = np.column_stack([g, np.zeros(len(g))])
     assert np.isclose(S.median_spacing(P), 0.01)
     assert np.isclose(S.median_spacing(np.vstack([P, P, P])), 0.01)
+
+
+def test_view_edge_length_is_the_gap_the_camera_saw():
+    # a steep plane (y = 5 x) sampled on the camera's 1 cm grid across its view (-y): 5 cm apart
+    # in 3D along x, 1 cm to the camera; a triangle with a vertex seen from behind is measured in 3D
+    x, z = np.meshgrid(np.arange(0, 0.05, 0.01), np.arange(0, 0.05, 0.01))
+    P = np.column_stack([x.ravel(), 5 * x.ravel(), z.ravel()])
+    f = np.array([[0, 1, 5], [1, 6, 5]])          # x steps 0->1, z steps 0->5
+    front = np.tile([0.0, -1.0, 0.0], (len(P), 1))
+    assert np.allclose(S.view_edge_length(P, f, front), np.hypot(0.01, 0.01))
+    assert np.allclose(S.view_edge_length(P, f, None), S.max_edge_length(P, f))
+    mixed = front.copy()
+    mixed[6] *= -1
+    assert np.allclose(S.view_edge_length(P, f, mixed), [np.hypot(0.01, 0.01), S.max_edge_length(P, f)[1]])
+
+
+def test_peel_keeps_the_steep_flanks_the_camera_saw():
+    # a cylinder scanned from front and back by parallel projection: columns 6 mm apart across
+    # the view, rows 2 mm apart along the axis (median spacing 2 mm, peel limit 8 mm). Toward the
+    # silhouettes the columns are more than 8 mm apart in 3D: a 3D peel eats the flanks through
+    # the hull's boundary; measured as the camera saw them (6 mm) they stay, on the cylinder
+    R = 0.05
+    x, z = np.meshgrid(np.arange(-0.048, 0.0481, 0.006), np.arange(0, 0.3, 0.002))
+    x, z = x.ravel(), z.ravel()
+    y = np.sqrt(R ** 2 - x ** 2)
+    P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
+    vd = np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
+    params = SurfaceParams(hull_edge_min=0.0)
+    flat = S.section_surface(P, shape, params)
+    seen = S.section_surface(P, shape, params, view_dir=vd)
+    assert len(np.setdiff1d(np.arange(len(P)), flat)) > 0.1 * len(P)     # the 3D peel leaves out flanks
+    assert len(np.unique(seen)) == len(P)                                 # every point in a face
+    c = P[seen].mean(axis=1)
+    assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.001                # on the surface (chords)
+    assert S.face_areas(P, seen).sum() > 0.8 * 2 * np.pi * R * 0.3        # most of the tube

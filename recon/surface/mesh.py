@@ -93,6 +93,34 @@ def face_keys(faces: np.ndarray) -> np.ndarray:
     return (f[:, 0] * n + f[:, 1]) * n + f[:, 2]
 
 
+def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
+                     same_side: float = 0.9) -> np.ndarray:
+    """(k,) longest edge (metres) of each of ``faces`` (k, 3) as its vertices' camera saw it:
+    measured across their mean viewing direction when the three were seen from one side (the
+    mean of their unit ``view_dir`` (n, 3) or (3,) at least ``same_side`` long), in 3D otherwise.
+
+    The scanner samples the surface on a grid across its viewing direction, so neighbouring
+    samples of one surface patch are a grid step apart across it however steeply the surface
+    turns away (the flanks of a limb, the sides of the trunk: long in 3D, short to the camera);
+    a hole in what the camera saw is wide across the view. Without ``view_dir``: 3D.
+    """
+    longest = max_edge_length(points, faces)
+    if view_dir is None or len(faces) == 0 or same_side > 1:
+        return longest
+    vd = np.asarray(view_dir, dtype=np.float64)
+    m = vd[faces].sum(axis=1) / 3 if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3))
+    ln = np.sqrt(np.einsum("ij,ij->i", m, m))
+    one = ln >= same_side
+    if not one.any():
+        return longest
+    m = m[one] / ln[one, None]
+    p = points[faces[one]]
+    e = p - np.roll(p, -1, axis=1)
+    e = e - np.einsum("kij,kj->ki", e, m)[..., None] * m[:, None, :]
+    longest[one] = np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1))
+    return longest
+
+
 def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
     """(k,) bool alive mask after repeatedly removing boundary triangles flagged ``too_long``.
 
@@ -252,7 +280,8 @@ def _cap_direction(shape: SectionShape, local: np.ndarray, end: int) -> np.ndarr
 
 
 def section_surface(points: np.ndarray, shape: SectionShape,
-                    params: SurfaceParams = SurfaceParams(), spacing: float | None = None) -> np.ndarray:
+                    params: SurfaceParams = SurfaceParams(), spacing: float | None = None,
+                    view_dir: np.ndarray | None = None) -> np.ndarray:
     """Triangulate one section's points by Delaunay on its model surface.
 
     Parameters
@@ -263,6 +292,9 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     params : SurfaceParams
     spacing : float, optional
         Median point spacing, metres (default: measured on ``points``).
+    view_dir : (m, 3) or (3,) float, optional
+        Unit directions of ``points`` toward their cameras: the boundary peel measures a
+        triangle's length as its camera saw it (`view_edge_length`, ``params.peel_same_side``).
 
     Returns
     -------
@@ -344,9 +376,10 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             max_edge_length(points, allf) > params.fold_edge_factor * spacing)
         parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
-    faces = faces[peel_boundary(faces, max_edge_length(points, faces) > hull_limit)]
+    seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side)
+    faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
     if params.max_edge_factor > 0 and len(faces):
-        faces = faces[max_edge_length(points, faces) <= params.max_edge_factor * spacing]
+        faces = faces[seen_len <= params.max_edge_factor * spacing]
     return faces
 
 
@@ -759,7 +792,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     def run(job):
         j, idx, shape = job[:3]
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
-        f = idx[section_surface(points[idx], shape, own, spacing)]
+        vd = None if view_dir is None or not drop_inner else (
+            view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
+        f = idx[section_surface(points[idx], shape, own, spacing, vd)]
         if len(job) > 4:  # only faces with an edge between these points (the rest: other charts')
             f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
         return j, f
