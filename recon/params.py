@@ -483,6 +483,9 @@ class SurfaceParams:
         "help": "the boundary peel measures a triangle whose vertices were seen from one side (their "
                 "mean viewing direction at least this long) across the view, as the camera saw it "
                 "(above 1 = in 3D)", "unit": "", "range": (0.0, 2.0)})
+    rejoin_edge: float = field(default=2.5, metadata={
+        "help": "points the rules left out of every face are put back with triangles no longer than "
+                "this in 3D, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own, joined to their section (False: the paper)",
@@ -914,6 +917,7 @@ PAPER = {
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "hull_edge_min": 0.0, "peel_same_side": 2.0,
+    "rejoin_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

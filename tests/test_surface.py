@@ -395,3 +395,23 @@ def test_peel_keeps_the_steep_flanks_the_camera_saw():
     c = P[seen].mean(axis=1)
     assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.001                # on the surface (chords)
     assert S.face_areas(P, seen).sum() > 0.8 * 2 * np.pi * R * 0.3        # most of the tube
+
+
+def test_rejoin_puts_left_out_points_back_with_short_triangles():
+    # a tube whose faces around a band of points were removed (as the peel or the air rules do):
+    # the band's points come back in short triangles on the tube, none repeating a kept face
+    P = cylinder_points(n=4000)
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    f = S.section_surface(P, shape)
+    sp = S.median_spacing(P)
+    band = (P[:, 2] > 0.18) & (P[:, 2] < 0.2) & (P[:, 0] > 0)
+    kept = f[~band[f].any(axis=1)]
+    more, sec = S.rejoin_left_out(P, kept, [(3, np.arange(len(P)), shape)], SurfaceParams(), sp, 2.5)
+    short = f[S.max_edge_length(P, f) <= 2.5 * sp]          # points with a short triangle before
+    back = np.intersect1d(np.flatnonzero(band), short)
+    assert len(back) > 0.75 * band.sum()
+    assert len(np.setdiff1d(back, np.concatenate([kept.ravel(), more.ravel()]))) == 0
+    assert (S.max_edge_length(P, more) <= 2.5 * sp + 1e-12).all()
+    assert (sec == 3).all() and not np.isin(S.face_keys(more), S.face_keys(kept)).any()
+    c = P[more].mean(axis=1)
+    assert (0.05 - np.hypot(c[:, 0], c[:, 1])).max() < 0.002                 # on the tube

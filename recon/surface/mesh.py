@@ -815,8 +815,87 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         faces, sec = faces[keep], sec[keep]
     if drop_inner and view_dir is not None:
         faces, sec = remove_air(points, faces, sec, view_dir, spacing, params, tree)
+    if drop_inner and params.rejoin_edge > 0:
+        more, more_sec = rejoin_left_out(points, faces, jobs, sp, spacing, params.rejoin_edge, view_dir, tree)
+        inner = (member.sum(axis=1) >= 2)[more].all(axis=1)     # as in the merge (paper 3.3)
+        more, more_sec = more[~inner], more_sec[~inner]
+        if drop_inner and view_dir is not None:
+            more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
+        faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
+
+
+def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: SurfaceParams, spacing: float,
+                    edge: float, view_dir=None, tree=None):
+    """Short triangles that put back the points the rules left out of every face.
+
+    The boundary peel and the air rules remove long triangles, and with them the points that had
+    no short one: strips of seen surface beside a hole, a flank's last row. Each chart is
+    triangulated again on its left-out points and the chart's points within ``edge`` spacings of
+    them, and the triangles with a left-out corner and no edge longer than ``edge`` spacings in
+    3D are kept: so short, they lie on the surface between neighbouring samples of one section
+    (air is wider than that; the caller passes them through the air rules too).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+        The surface so far.
+    jobs : list of (int, (m,) int, SectionShape[, dict[, (m',) int]])
+        The charts (`reconstruct_surfaces`).
+    params : SurfaceParams
+    spacing : float
+        Median point spacing, metres.
+    edge : float
+        Spacings: the longest edge of a rejoining triangle.
+    view_dir : (n, 3) or (3,) float, optional
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``.
+
+    Returns
+    -------
+    faces : (k', 3) int
+        New triangles (none of ``faces``' vertex sets).
+    face_section : (k',) int8
+    """
+    from scipy.spatial import cKDTree
+
+    used = np.zeros(len(points), dtype=bool)
+    used[np.asarray(faces, dtype=np.int64).ravel()] = True
+    tree = cKDTree(points) if tree is None else tree
+    out, out_sec = [], []
+    r = edge * spacing
+    for job in jobs:
+        j, idx, shape = job[:3]
+        left = idx[~used[idx]]
+        if len(left) == 0:
+            continue
+        near = tree.query_ball_point(points[left], r)
+        near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+        sub = np.union1d(left, np.intersect1d(near, idx, assume_unique=True))
+        if len(sub) < 3:
+            continue
+        own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
+        own = dataclasses.replace(own, max_edge_factor=edge, hull_edge_factor=edge, hull_edge_min=0.0)
+        vd = None if view_dir is None else (view_dir[sub] if np.ndim(view_dir) == 2 else view_dir)
+        f = sub[section_surface(points[sub], shape, own, spacing, vd)]
+        f = f[(~used[f]).any(axis=1)]
+        if len(job) > 4:
+            f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
+        out.append(f)
+        out_sec.append(np.full(len(f), j, dtype=np.int8))
+    if not out:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
+    f, s = np.concatenate(out).astype(np.int64), np.concatenate(out_sec)
+    k_old = face_keys(np.concatenate([faces, f]))
+    new = ~np.isin(k_old[len(faces):], k_old[:len(faces)])
+    f, s = f[new], s[new]
+    _, first = np.unique(face_keys(f), return_index=True) if len(f) else (None, np.zeros(0, dtype=np.int64))
+    first = np.sort(first)
+    f, s = f[first], s[first]
+    keep = face_areas(points, f) > 1e-12
+    return f[keep], s[keep]
 
 
 def remove_air(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, view_dir: np.ndarray,
