@@ -490,7 +490,7 @@ class SurfaceParams:
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own, joined to their section (False: the paper)",
         "unit": "", "range": (False, True)})
-    far_link: float = field(default=2.5, metadata={
+    far_link: float = field(default=4.0, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
         "range": (0.5, None)})
     far_join: float = field(default=3.0, metadata={
@@ -508,7 +508,7 @@ class SurfaceParams:
     close_envelope: float = field(default=0.3, metadata={
         "help": "proposed-closed: holes are filled at most this beyond the model radius",
         "unit": "widths", "range": (0.0, None)})
-    far_min_points: int = field(default=10, metadata={
+    far_min_points: int = field(default=5, metadata={
         "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
         "range": (3, None)})
 

@@ -105,7 +105,7 @@ def nearest_axis(part: np.ndarray, sections: dict) -> int:
 
 
 def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
-               spacing: float, link: float = 2.5, join: float = 3.0, min_points: int = 10,
+               spacing: float, link: float = 4.0, join: float = 3.0, min_points: int = 5,
                max_edge: float = 4.0, tree=None):
     """Charts for the points no fitted section explains (see the module docstring).
 
