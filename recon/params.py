@@ -394,6 +394,18 @@ class SurfaceParams:
         arms_close; oracle posture) a stray vertex has its camera but not the surface's position:
         the rule alone lowers bridging 1.054 -> 1.009 % for 0.2 % of the good area (1.3342 ->
         1.3314 m^2); the concavity rules alone 1.054 -> 0.780 % for 0.06 %; both 0.756 %, 1.3306.
+    peel_same_side : float
+        The boundary peel (and the far charts' ``far_max_edge``) measures a triangle whose vertices
+        were seen from one side (their mean unit viewing direction at least this long) across the
+        view, as the camera saw it (`recon.surface.mesh.view_edge_length`): the flanks of limbs and
+        trunk, steep to the camera, are long in 3D but a grid step apart to it (paper: 3D, 2).
+    cover_max_edge : float
+        Metres: triangles longer than this (as their camera saw them, never below the peel's
+        limit) are removed, so holes wider than it stay open (paper: every hole covered, 0).
+    rejoin_edge : float
+        Spacings: the points the peel and the air rules left out of every face are put back with
+        triangles no longer than this on their own chart (`recon.surface.mesh.rejoin_left_out`;
+        paper: 0).
     concave_height, concave_mean_height, concave_min_edge : float
         Covers of concavities (paper: none; ``concave_height = 0`` switches it off; ``proposed``
         only): a triangle of surface lies in the surface's tangent planes at its vertices, up to
@@ -483,6 +495,10 @@ class SurfaceParams:
         "help": "the boundary peel measures a triangle whose vertices were seen from one side (their "
                 "mean viewing direction at least this long) across the view, as the camera saw it "
                 "(above 1 = in 3D)", "unit": "", "range": (0.0, 2.0)})
+    cover_max_edge: float = field(default=0.06, metadata={
+        "help": "triangles longer than this (as their camera saw them; never below the peel's "
+                "limit) are removed: no covers of large holes (0 = the paper's covers)",
+        "unit": "m", "range": (0.0, None)})
     rejoin_edge: float = field(default=2.5, metadata={
         "help": "points the rules left out of every face are put back with triangles no longer than "
                 "this in 3D, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
@@ -917,7 +933,7 @@ PAPER = {
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "hull_edge_min": 0.0, "peel_same_side": 2.0,
-    "rejoin_edge": 0.0,
+    "rejoin_edge": 0.0, "cover_max_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

@@ -415,3 +415,20 @@ def test_rejoin_puts_left_out_points_back_with_short_triangles():
     assert (sec == 3).all() and not np.isin(S.face_keys(more), S.face_keys(kept)).any()
     c = P[more].mean(axis=1)
     assert (0.05 - np.hypot(c[:, 0], c[:, 1])).max() < 0.002                 # on the tube
+
+
+def test_cover_max_edge_leaves_large_holes_open_and_covers_small_ones():
+    P = cylinder_points(n=6000)
+    big = (np.abs(P[:, 2] - 0.13) < 0.08) & (P[:, 0] < -0.02)      # 16 by 12 cm, off the seam
+    small = (np.abs(P[:, 2] - 0.3) < 0.012) & (P[:, 0] > 0.035)    # 2.4 by 3 cm
+    P = P[~big & ~small]
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    paper = S.section_surface(P, shape, SurfaceParams(cover_max_edge=0.0))
+    ours = S.section_surface(P, shape, SurfaceParams(cover_max_edge=0.06))
+    assert S.max_edge_length(P, paper).max() > 0.08                    # the paper covers the big hole
+    assert S.max_edge_length(P, ours).max() <= 0.06
+    hole = 0.16 * 0.05 * 2 * np.arccos(0.02 / 0.05)                     # the big hole's true area
+    assert S.face_areas(P, paper).sum() - S.face_areas(P, ours).sum() > 0.5 * hole
+    for f in (paper, ours):                                             # the small hole: covered
+        c = P[f].mean(axis=1)
+        assert ((np.abs(c[:, 2] - 0.3) < 0.006) & (c[:, 0] > 0.045)).any()

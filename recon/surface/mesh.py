@@ -378,8 +378,11 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
     seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side)
     faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
-    if params.max_edge_factor > 0 and len(faces):
-        faces = faces[seen_len <= params.max_edge_factor * spacing]
+    limit = np.inf if params.max_edge_factor <= 0 else params.max_edge_factor * spacing
+    if params.cover_max_edge > 0:
+        limit = min(limit, max(params.cover_max_edge, hull_limit))
+    if np.isfinite(limit) and len(faces):
+        faces = faces[seen_len <= limit]
     return faces
 
 
@@ -787,7 +790,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
 
     # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), and
     # the boundary peel without our hull_edge_min
-    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0)
+    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0,
+                                                               cover_max_edge=0.0)
 
     def run(job):
         j, idx, shape = job[:3]
