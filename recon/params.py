@@ -487,7 +487,7 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
-    hull_edge_min: float = field(default=0.03, metadata={
+    hull_edge_min: float = field(default=0.05, metadata={
         "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
                 "dense scans keep their seen surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})

@@ -24,7 +24,10 @@ def cylinder_points(n=3000, radius=0.05, length=0.4, seed=0):
 def test_open_cylinder_gives_a_tube_of_its_points():
     P = cylinder_points()
     shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
-    f = S.section_surface(P, shape)
+    # the peel in spacings alone (our floor, hull_edge_min, keeps rim slivers up to it: below)
+    f = S.section_surface(P, shape, SurfaceParams(hull_edge_min=0.0))
+    floor = S.section_surface(P, shape)
+    assert S.max_edge_length(P, floor).max() <= SurfaceParams().hull_edge_min
     u, c = edge_counts(f)
     assert len(np.unique(f)) >= 0.99 * len(P)            # (almost) every point is a vertex
     assert (c <= 2).all()                                # manifold
