@@ -376,6 +376,8 @@ def test_view_edge_length_is_the_gap_the_camera_saw():
     mixed = front.copy()
     mixed[6] *= -1
     assert np.allclose(S.view_edge_length(P, f, mixed), [np.hypot(0.01, 0.01), S.max_edge_length(P, f)[1]])
+    # bounded by the 3D length over the stretch: steeper than 1.5 counts as a depth step
+    assert np.allclose(S.view_edge_length(P, f, front, stretch=1.5), S.max_edge_length(P, f) / 1.5)
 
 
 def test_peel_keeps_the_steep_flanks_the_camera_saw():
@@ -390,7 +392,7 @@ def test_peel_keeps_the_steep_flanks_the_camera_saw():
     P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
     vd = np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
     shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
-    params = SurfaceParams(hull_edge_min=0.0)
+    params = SurfaceParams(hull_edge_min=0.0, peel_stretch=3.0)    # flanks up to 2.4 cm in 3D
     flat = S.section_surface(P, shape, params)
     seen = S.section_surface(P, shape, params, view_dir=vd)
     assert len(np.setdiff1d(np.arange(len(P)), flat)) > 0.1 * len(P)     # the 3D peel leaves out flanks

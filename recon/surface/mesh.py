@@ -94,15 +94,18 @@ def face_keys(faces: np.ndarray) -> np.ndarray:
 
 
 def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
-                     same_side: float = 0.9) -> np.ndarray:
+                     same_side: float = 0.9, stretch: float = np.inf) -> np.ndarray:
     """(k,) longest edge (metres) of each of ``faces`` (k, 3) as its vertices' camera saw it:
     measured across their mean viewing direction when the three were seen from one side (the
-    mean of their unit ``view_dir`` (n, 3) or (3,) at least ``same_side`` long), in 3D otherwise.
+    mean of their unit ``view_dir`` (n, 3) or (3,) at least ``same_side`` long), but at least
+    the 3D length over ``stretch``; in 3D otherwise.
 
     The scanner samples the surface on a grid across its viewing direction, so neighbouring
     samples of one surface patch are a grid step apart across it however steeply the surface
     turns away (the flanks of a limb, the sides of the trunk: long in 3D, short to the camera);
-    a hole in what the camera saw is wide across the view. Without ``view_dir``: 3D.
+    a hole in what the camera saw is wide across the view. Two surfaces one behind the other are
+    also near across the view: ``stretch`` bounds how much steeper than the view a triangle may
+    stand. Without ``view_dir``: 3D.
     """
     longest = max_edge_length(points, faces)
     if view_dir is None or len(faces) == 0 or same_side > 1:
@@ -117,7 +120,7 @@ def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
     p = points[faces[one]]
     e = p - np.roll(p, -1, axis=1)
     e = e - np.einsum("kij,kj->ki", e, m)[..., None] * m[:, None, :]
-    longest[one] = np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1))
+    longest[one] = np.maximum(np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1)), longest[one] / stretch)
     return longest
 
 
@@ -376,7 +379,7 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             max_edge_length(points, allf) > params.fold_edge_factor * spacing)
         parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
-    seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side)
+    seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side, params.peel_stretch)
     faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
     limit = np.inf if params.max_edge_factor <= 0 else params.max_edge_factor * spacing
     if params.cover_max_edge > 0:
