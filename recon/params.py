@@ -495,19 +495,18 @@ class SurfaceParams:
                 "dense scans keep their seen surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
     peel_same_side: float = field(default=0.9, metadata={
-        "help": "the boundary peel measures a triangle whose vertices were seen from one side (their "
-                "mean viewing direction at least this long) across the view, as the camera saw it "
-                "(above 1 = in 3D)", "unit": "", "range": (0.0, 2.0)})
+        "help": "the peel measures a triangle seen from one side (mean view direction at least this "
+                "long) across the view, as its camera saw it (above 1: in 3D)", "unit": "", "range": (0.0, 2.0)})
     peel_stretch: float = field(default=1.5, metadata={
         "help": "a triangle seen from one side counts at least its 3D length over this (a depth "
-                "step between two surfaces is short across the view)", "unit": "", "range": (1.0, None)})
+                "step is short across the view)", "unit": "", "range": (1.0, None)})
     cover_max_edge: float = field(default=0.06, metadata={
-        "help": "triangles longer than this (as their camera saw them; never below the peel's "
-                "limit) are removed: no covers of large holes (0 = the paper's covers)",
+        "help": "triangles longer than this (as their camera saw them; at least the peel's limit) "
+                "are removed: large holes stay open (0: all covered)",
         "unit": "m", "range": (0.0, None)})
     rejoin_edge: float = field(default=2.5, metadata={
         "help": "points the rules left out of every face are put back with triangles no longer than "
-                "this in 3D, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
+                "this, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own, joined to their section (False: the paper)",
