@@ -394,6 +394,21 @@ class SurfaceParams:
         arms_close; oracle posture) a stray vertex has its camera but not the surface's position:
         the rule alone lowers bridging 1.054 -> 1.009 % for 0.2 % of the good area (1.3342 ->
         1.3314 m^2); the concavity rules alone 1.054 -> 0.780 % for 0.06 %; both 0.756 %, 1.3306.
+    peel_same_side : float
+        The boundary peel (and the far charts' ``far_max_edge``) measures a triangle whose vertices
+        were seen from one side (their mean unit viewing direction at least this long) across the
+        view, as the camera saw it (`recon.surface.mesh.view_edge_length`): the flanks of limbs and
+        trunk, steep to the camera, are long in 3D but a grid step apart to it (paper: 3D, 2);
+        at least the 3D length over ``peel_stretch`` (two surfaces one behind the other, a thigh
+        over a calf in a squat, are near across the view too: bridging on the shipped squat 0.39
+        -> 0.86 % without it, 0.37 % with 1.5).
+    cover_max_edge : float
+        Metres: triangles longer than this (as their camera saw them, never below the peel's
+        limit) are removed, so holes wider than it stay open (paper: every hole covered, 0).
+    rejoin_edge : float
+        Spacings: the points the peel and the air rules left out of every face are put back with
+        triangles no longer than this on their own chart (`recon.surface.mesh.rejoin_left_out`;
+        paper: 0).
     concave_height, concave_mean_height, concave_min_edge : float
         Covers of concavities (paper: none; ``concave_height = 0`` switches it off; ``proposed``
         only): a triangle of surface lies in the surface's tangent planes at its vertices, up to
@@ -475,22 +490,35 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
-    hull_edge_min: float = field(default=0.03, metadata={
+    hull_edge_min: float = field(default=0.04, metadata={
         "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
                 "dense scans keep their seen surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
+    peel_same_side: float = field(default=0.9, metadata={
+        "help": "the peel measures a triangle seen from one side (mean view direction at least this "
+                "long) across the view, as its camera saw it (above 1: in 3D)", "unit": "", "range": (0.0, 2.0)})
+    peel_stretch: float = field(default=1.5, metadata={
+        "help": "a triangle seen from one side counts at least its 3D length over this (a depth "
+                "step is short across the view)", "unit": "", "range": (1.0, None)})
+    cover_max_edge: float = field(default=0.06, metadata={
+        "help": "triangles longer than this (as their camera saw them; at least the peel's limit) "
+                "are removed: large holes stay open (0: all covered)",
+        "unit": "m", "range": (0.0, None)})
+    rejoin_edge: float = field(default=2.5, metadata={
+        "help": "points the rules left out of every face are put back with triangles no longer than "
+                "this, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections) on "
                 "charts of their own, joined to their section (False: the paper)",
         "unit": "", "range": (False, True)})
-    far_link: float = field(default=2.5, metadata={
+    far_link: float = field(default=4.0, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
         "range": (0.5, None)})
     far_join: float = field(default=3.0, metadata={
         "help": "meshed points within this of a far part join its chart", "unit": "spacings",
         "range": (0.0, None)})
-    far_max_edge: float = field(default=3.0, metadata={
-        "help": "longer triangles are left out of the far parts' charts (0 = no limit)",
+    far_max_edge: float = field(default=4.0, metadata={
+        "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     close_voxel: float = field(default=0.008, metadata={
         "help": "proposed-closed: grid step of the closed surface (recon.surface.complete.closed_surface)",
@@ -501,7 +529,7 @@ class SurfaceParams:
     close_envelope: float = field(default=0.3, metadata={
         "help": "proposed-closed: holes are filled at most this beyond the model radius",
         "unit": "widths", "range": (0.0, None)})
-    far_min_points: int = field(default=10, metadata={
+    far_min_points: int = field(default=5, metadata={
         "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
         "range": (3, None)})
 
@@ -915,7 +943,8 @@ PAPER = {
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
-    "far_charts": False, "hull_edge_min": 0.0,
+    "far_charts": False, "hull_edge_min": 0.0, "peel_same_side": 2.0,
+    "rejoin_edge": 0.0, "cover_max_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

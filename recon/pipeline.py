@@ -372,7 +372,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
             from .surface.complete import far_charts
 
             sp = params.surface
-            extra = far_charts(p, far & member.any(axis=1), fit.sections, meshed, spacing, sp.far_link,
+            extra = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link,
                                sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
     t_mesh = time.perf_counter() - t0
     mesh_points = p

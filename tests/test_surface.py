@@ -24,7 +24,10 @@ def cylinder_points(n=3000, radius=0.05, length=0.4, seed=0):
 def test_open_cylinder_gives_a_tube_of_its_points():
     P = cylinder_points()
     shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
-    f = S.section_surface(P, shape)
+    # the peel in spacings alone (our floor, hull_edge_min, keeps rim slivers up to it: below)
+    f = S.section_surface(P, shape, SurfaceParams(hull_edge_min=0.0))
+    floor = S.section_surface(P, shape)
+    assert S.max_edge_length(P, floor).max() <= SurfaceParams().hull_edge_min
     u, c = edge_counts(f)
     assert len(np.unique(f)) >= 0.99 * len(P)            # (almost) every point is a vertex
     assert (c <= 2).all()                                # manifold
@@ -359,3 +362,78 @@ def test_median_spacing_skips_repeated_points():
     P = np.column_stack([g, np.zeros(len(g))])
     assert np.isclose(S.median_spacing(P), 0.01)
     assert np.isclose(S.median_spacing(np.vstack([P, P, P])), 0.01)
+
+
+def test_view_edge_length_is_the_gap_the_camera_saw():
+    # a steep plane (y = 5 x) sampled on the camera's 1 cm grid across its view (-y): 5 cm apart
+    # in 3D along x, 1 cm to the camera; a triangle with a vertex seen from behind is measured in 3D
+    x, z = np.meshgrid(np.arange(0, 0.05, 0.01), np.arange(0, 0.05, 0.01))
+    P = np.column_stack([x.ravel(), 5 * x.ravel(), z.ravel()])
+    f = np.array([[0, 1, 5], [1, 6, 5]])          # x steps 0->1, z steps 0->5
+    front = np.tile([0.0, -1.0, 0.0], (len(P), 1))
+    assert np.allclose(S.view_edge_length(P, f, front), np.hypot(0.01, 0.01))
+    assert np.allclose(S.view_edge_length(P, f, None), S.max_edge_length(P, f))
+    mixed = front.copy()
+    mixed[6] *= -1
+    assert np.allclose(S.view_edge_length(P, f, mixed), [np.hypot(0.01, 0.01), S.max_edge_length(P, f)[1]])
+    # bounded by the 3D length over the stretch: steeper than 1.5 counts as a depth step
+    assert np.allclose(S.view_edge_length(P, f, front, stretch=1.5), S.max_edge_length(P, f) / 1.5)
+
+
+def test_peel_keeps_the_steep_flanks_the_camera_saw():
+    # a cylinder scanned from front and back by parallel projection: columns 6 mm apart across
+    # the view, rows 2 mm apart along the axis (median spacing 2 mm, peel limit 8 mm). Toward the
+    # silhouettes the columns are more than 8 mm apart in 3D: a 3D peel eats the flanks through
+    # the hull's boundary; measured as the camera saw them (6 mm) they stay, on the cylinder
+    R = 0.05
+    x, z = np.meshgrid(np.arange(-0.048, 0.0481, 0.006), np.arange(0, 0.3, 0.002))
+    x, z = x.ravel(), z.ravel()
+    y = np.sqrt(R ** 2 - x ** 2)
+    P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
+    vd = np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
+    params = SurfaceParams(hull_edge_min=0.0, peel_stretch=3.0)    # flanks up to 2.4 cm in 3D
+    flat = S.section_surface(P, shape, params)
+    seen = S.section_surface(P, shape, params, view_dir=vd)
+    assert len(np.setdiff1d(np.arange(len(P)), flat)) > 0.1 * len(P)     # the 3D peel leaves out flanks
+    assert len(np.unique(seen)) == len(P)                                 # every point in a face
+    c = P[seen].mean(axis=1)
+    assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.001                # on the surface (chords)
+    assert S.face_areas(P, seen).sum() > 0.8 * 2 * np.pi * R * 0.3        # most of the tube
+
+
+def test_rejoin_puts_left_out_points_back_with_short_triangles():
+    # a tube whose faces around a band of points were removed (as the peel or the air rules do):
+    # the band's points come back in short triangles on the tube, none repeating a kept face
+    P = cylinder_points(n=4000)
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    f = S.section_surface(P, shape)
+    sp = S.median_spacing(P)
+    band = (P[:, 2] > 0.18) & (P[:, 2] < 0.2) & (P[:, 0] > 0)
+    kept = f[~band[f].any(axis=1)]
+    more, sec = S.rejoin_left_out(P, kept, [(3, np.arange(len(P)), shape)], SurfaceParams(), sp, 2.5)
+    short = f[S.max_edge_length(P, f) <= 2.5 * sp]          # points with a short triangle before
+    back = np.intersect1d(np.flatnonzero(band), short)
+    assert len(back) > 0.75 * band.sum()
+    assert len(np.setdiff1d(back, np.concatenate([kept.ravel(), more.ravel()]))) == 0
+    assert (S.max_edge_length(P, more) <= 2.5 * sp + 1e-12).all()
+    assert (sec == 3).all() and not np.isin(S.face_keys(more), S.face_keys(kept)).any()
+    c = P[more].mean(axis=1)
+    assert (0.05 - np.hypot(c[:, 0], c[:, 1])).max() < 0.002                 # on the tube
+
+
+def test_cover_max_edge_leaves_large_holes_open_and_covers_small_ones():
+    P = cylinder_points(n=6000)
+    big = (np.abs(P[:, 2] - 0.13) < 0.08) & (P[:, 0] < -0.02)      # 16 by 12 cm, off the seam
+    small = (np.abs(P[:, 2] - 0.3) < 0.012) & (P[:, 0] > 0.035)    # 2.4 by 3 cm
+    P = P[~big & ~small]
+    shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.4], [0.05, 0.05], [1, 0, 0], closed=(False, False))
+    paper = S.section_surface(P, shape, SurfaceParams(cover_max_edge=0.0))
+    ours = S.section_surface(P, shape, SurfaceParams(cover_max_edge=0.06))
+    assert S.max_edge_length(P, paper).max() > 0.08                    # the paper covers the big hole
+    assert S.max_edge_length(P, ours).max() <= 0.06
+    hole = 0.16 * 0.05 * 2 * np.arccos(0.02 / 0.05)                     # the big hole's true area
+    assert S.face_areas(P, paper).sum() - S.face_areas(P, ours).sum() > 0.5 * hole
+    for f in (paper, ours):                                             # the small hole: covered
+        c = P[f].mean(axis=1)
+        assert ((np.abs(c[:, 2] - 0.3) < 0.006) & (c[:, 0] > 0.045)).any()

@@ -105,16 +105,15 @@ def nearest_axis(part: np.ndarray, sections: dict) -> int:
 
 
 def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
-               spacing: float, link: float = 2.5, join: float = 3.0, min_points: int = 10,
-               max_edge: float = 3.0, tree=None):
+               spacing: float, link: float = 4.0, join: float = 3.0, min_points: int = 5,
+               max_edge: float = 4.0, tree=None):
     """Charts for the points no fitted section explains (see the module docstring).
 
     Parameters
     ----------
     points : (n, 3) float, metres
     far : (n,) bool
-        Points beyond T_d of every fitted section that the clustering labelled through their
-        neighbours (`recon.clustering.cluster.adopt_unlabeled`: connected to the body).
+        Points beyond T_d of every fitted section (hands, feet, a section listed unfitted).
     sections : dict of str to SectionShape
         The fitted sections (`BodyFit.sections`): a part goes to the one whose axis comes
         nearest (`nearest_axis`).
@@ -136,6 +135,8 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     Returns
     -------
     list of (int, (k,) int, SectionShape, dict, (k',) int)
+        Parts with no meshed point within ``join`` spacings are left out (nothing of the body
+        they continue).
         Section index, point indices, chart and surface parameter changes of each part (for
         `recon.surface.mesh.reconstruct_surfaces`'s ``extra``), and the part's own points (without
         the joined ones: its solid in `closed_surface`). The parts' points are in no section
@@ -149,6 +150,8 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         j = nearest_axis(points[idx], sections)
         near = tree.query_ball_point(points[idx], join * spacing)
         near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+        if not meshed[near].any():   # joined to no meshed point: not the body's (a fit off the cloud)
+            continue
         near = near[meshed[near, j]]
         shape = part_shape(points[idx], points[near], SECTIONS[j])
         jobs.append((j, np.union1d(idx, near), shape, {"max_edge_factor": max_edge}, idx))

@@ -93,6 +93,37 @@ def face_keys(faces: np.ndarray) -> np.ndarray:
     return (f[:, 0] * n + f[:, 1]) * n + f[:, 2]
 
 
+def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
+                     same_side: float = 0.9, stretch: float = np.inf) -> np.ndarray:
+    """(k,) longest edge (metres) of each of ``faces`` (k, 3) as its vertices' camera saw it:
+    measured across their mean viewing direction when the three were seen from one side (the
+    mean of their unit ``view_dir`` (n, 3) or (3,) at least ``same_side`` long), but at least
+    the 3D length over ``stretch``; in 3D otherwise.
+
+    The scanner samples the surface on a grid across its viewing direction, so neighbouring
+    samples of one surface patch are a grid step apart across it however steeply the surface
+    turns away (the flanks of a limb, the sides of the trunk: long in 3D, short to the camera);
+    a hole in what the camera saw is wide across the view. Two surfaces one behind the other are
+    also near across the view: ``stretch`` bounds how much steeper than the view a triangle may
+    stand. Without ``view_dir``: 3D.
+    """
+    longest = max_edge_length(points, faces)
+    if view_dir is None or len(faces) == 0 or same_side > 1:
+        return longest
+    vd = np.asarray(view_dir, dtype=np.float64)
+    m = vd[faces].sum(axis=1) / 3 if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3))
+    ln = np.sqrt(np.einsum("ij,ij->i", m, m))
+    one = ln >= same_side
+    if not one.any():
+        return longest
+    m = m[one] / ln[one, None]
+    p = points[faces[one]]
+    e = p - np.roll(p, -1, axis=1)
+    e = e - np.einsum("kij,kj->ki", e, m)[..., None] * m[:, None, :]
+    longest[one] = np.maximum(np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1)), longest[one] / stretch)
+    return longest
+
+
 def peel_boundary(faces: np.ndarray, too_long: np.ndarray) -> np.ndarray:
     """(k,) bool alive mask after repeatedly removing boundary triangles flagged ``too_long``.
 
@@ -256,7 +287,8 @@ def _cap_direction(shape: SectionShape, local: np.ndarray, end: int) -> np.ndarr
 
 
 def section_surface(points: np.ndarray, shape: SectionShape,
-                    params: SurfaceParams = SurfaceParams(), spacing: float | None = None) -> np.ndarray:
+                    params: SurfaceParams = SurfaceParams(), spacing: float | None = None,
+                    view_dir: np.ndarray | None = None) -> np.ndarray:
     """Triangulate one section's points by Delaunay on its model surface.
 
     Parameters
@@ -267,6 +299,9 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     params : SurfaceParams
     spacing : float, optional
         Median point spacing, metres (default: measured on ``points``).
+    view_dir : (m, 3) or (3,) float, optional
+        Unit directions of ``points`` toward their cameras: the boundary peel measures a
+        triangle's length as its camera saw it (`view_edge_length`, ``params.peel_same_side``).
 
     Returns
     -------
@@ -348,9 +383,13 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             max_edge_length(points, allf) > params.fold_edge_factor * spacing)
         parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
-    faces = faces[peel_boundary(faces, max_edge_length(points, faces) > hull_limit)]
-    if params.max_edge_factor > 0 and len(faces):
-        faces = faces[max_edge_length(points, faces) <= params.max_edge_factor * spacing]
+    seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side, params.peel_stretch)
+    faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
+    limit = np.inf if params.max_edge_factor <= 0 else params.max_edge_factor * spacing
+    if params.cover_max_edge > 0:
+        limit = min(limit, max(params.cover_max_edge, hull_limit))
+    if np.isfinite(limit) and len(faces):
+        faces = faces[seen_len <= limit]
     return faces
 
 
@@ -758,12 +797,15 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
 
     # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), and
     # the boundary peel without our hull_edge_min
-    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0)
+    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0,
+                                                               cover_max_edge=0.0)
 
     def run(job):
         j, idx, shape = job[:3]
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
-        f = idx[section_surface(points[idx], shape, own, spacing)]
+        vd = None if view_dir is None or not drop_inner else (
+            view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
+        f = idx[section_surface(points[idx], shape, own, spacing, vd)]
         if len(job) > 4:  # only faces with an edge between these points (the rest: other charts')
             f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
         return j, f
@@ -784,8 +826,87 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         faces, sec = faces[keep], sec[keep]
     if drop_inner and view_dir is not None:
         faces, sec = remove_air(points, faces, sec, view_dir, spacing, params, tree)
+    if drop_inner and params.rejoin_edge > 0:
+        more, more_sec = rejoin_left_out(points, faces, jobs, sp, spacing, params.rejoin_edge, view_dir, tree)
+        inner = (member.sum(axis=1) >= 2)[more].all(axis=1)     # as in the merge (paper 3.3)
+        more, more_sec = more[~inner], more_sec[~inner]
+        if drop_inner and view_dir is not None:
+            more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
+        faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
+
+
+def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: SurfaceParams, spacing: float,
+                    edge: float, view_dir=None, tree=None):
+    """Short triangles that put back the points the rules left out of every face.
+
+    The boundary peel and the air rules remove long triangles, and with them the points that had
+    no short one: strips of seen surface beside a hole, a flank's last row. Each chart is
+    triangulated again on its left-out points and the chart's points within ``edge`` spacings of
+    them, and the triangles with a left-out corner and no edge longer than ``edge`` spacings in
+    3D are kept: so short, they lie on the surface between neighbouring samples of one section
+    (air is wider than that; the caller passes them through the air rules too).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+        The surface so far.
+    jobs : list of (int, (m,) int, SectionShape[, dict[, (m',) int]])
+        The charts (`reconstruct_surfaces`).
+    params : SurfaceParams
+    spacing : float
+        Median point spacing, metres.
+    edge : float
+        Spacings: the longest edge of a rejoining triangle.
+    view_dir : (n, 3) or (3,) float, optional
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``.
+
+    Returns
+    -------
+    faces : (k', 3) int
+        New triangles (none of ``faces``' vertex sets).
+    face_section : (k',) int8
+    """
+    from scipy.spatial import cKDTree
+
+    used = np.zeros(len(points), dtype=bool)
+    used[np.asarray(faces, dtype=np.int64).ravel()] = True
+    tree = cKDTree(points) if tree is None else tree
+    out, out_sec = [], []
+    r = edge * spacing
+    for job in jobs:
+        j, idx, shape = job[:3]
+        left = idx[~used[idx]]
+        if len(left) == 0:
+            continue
+        near = tree.query_ball_point(points[left], r)
+        near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+        sub = np.union1d(left, np.intersect1d(near, idx, assume_unique=True))
+        if len(sub) < 3:
+            continue
+        own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
+        own = dataclasses.replace(own, max_edge_factor=edge, hull_edge_factor=edge, hull_edge_min=0.0)
+        vd = None if view_dir is None else (view_dir[sub] if np.ndim(view_dir) == 2 else view_dir)
+        f = sub[section_surface(points[sub], shape, own, spacing, vd)]
+        f = f[(~used[f]).any(axis=1)]
+        if len(job) > 4:
+            f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
+        out.append(f)
+        out_sec.append(np.full(len(f), j, dtype=np.int8))
+    if not out:
+        return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
+    f, s = np.concatenate(out).astype(np.int64), np.concatenate(out_sec)
+    k_old = face_keys(np.concatenate([faces, f]))
+    new = ~np.isin(k_old[len(faces):], k_old[:len(faces)])
+    f, s = f[new], s[new]
+    _, first = np.unique(face_keys(f), return_index=True) if len(f) else (None, np.zeros(0, dtype=np.int64))
+    first = np.sort(first)
+    f, s = f[first], s[first]
+    keep = face_areas(points, f) > 1e-12
+    return f[keep], s[keep]
 
 
 def remove_air(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, view_dir: np.ndarray,
