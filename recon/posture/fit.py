@@ -141,7 +141,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    their sections' axes; it agreed with the legs on all 42 library runs at k = 1 and 3). A scan
    rotated about the vertical gives the same fit.
 7. Checks: a limb section whose volume score is below `match_min_section_score` or whose surface
-   cells hold too few points (`fit_min_section_cover`) is unfitted (and so is what hangs from it);
+   cells hold too few points (`fit_min_section_cover`) is unfitted: missing from the scan (what hangs
+   from it stands on its own points and checks: a thigh held level, seen from the front, holds no
+   inside voxels while its lower leg is seen well); a section listed by the checks below was placed
+   wrongly, and what hangs from it is listed too;
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
    warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
@@ -418,9 +421,12 @@ def _finish(work, pose: Pose, params: FitParams):
     # an arm seen only sparsely (held towards a camera), searched as a chain from its shoulder
     secs, resid, counts, reached = reach_arms(work, secs, resid, counts, unfitted, pose.body, params, back)
     unfitted = tuple(n for n in unfitted if n not in reached or _on_trunk(n, secs, pose.body, params))
-    # a distal section hangs from its proximal one: without it, its position means nothing
+    # a distal section hangs from its proximal one: when that was placed wrongly, its position means
+    # nothing; when that is only missing from the scan (its points too few, or in empty voxels: a
+    # thigh held level, seen from the front), the distal section stands on its own points and checks
+    wrong = {n for n in unfitted if not unseen(n)}
     unfitted = tuple(n for n in SECTIONS if n in unfitted or any(
-        n == dist and prox in unfitted for prox, dist, *_ in LIMBS))
+        n == dist and prox in wrong for prox, dist, *_ in LIMBS))
     if "waist" in unfitted or "chest" in unfitted or len(unfitted) > params.fit_max_unfitted:
         raise ReconError(f"the cloud does not look like a human body: only {11 - len(unfitted)} of 11 "
                          f"body sections could be fitted")
