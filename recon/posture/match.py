@@ -279,11 +279,10 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
             continue
         kept.append(i)
         elbow = root + L1 * dirs[i]
-        s2 = distal(elbow, dirs[i], F)
-        tot = s1[i] * L1 + s2 * L2
-        tot[dirs @ dirs[i] < cos_max] = -np.inf
-        tot[shin_up(dirs[i], dirs)] = -np.inf
-        tot[(L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)] = -np.inf
+        ok = ~((dirs @ dirs[i] < cos_max) | shin_up(dirs[i], dirs)
+               | ((L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)))
+        tot = np.full(len(dirs), -np.inf)
+        tot[ok] = s1[i] * L1 + distal(elbow, dirs[i], F[ok]) * L2   # only the bends a chain can take
         j = int(np.argmax(tot))
         if tot[j] > best[0]:
             best = (tot[j], dirs[i], dirs[j])
