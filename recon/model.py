@@ -122,6 +122,29 @@ class SectionShape:
         a, b = self.radii
         return a * b / np.hypot(b * np.cos(theta), a * np.sin(theta))
 
+    def _scaled(self, points: np.ndarray):
+        """Local ``x, y, h`` (n,), the axial excess ``e`` (n,) beyond a closed end, and ``s`` (n,):
+        the point's distance from the axis in units of the surface's (1 on the surface)."""
+        q = self.local(points)
+        x, y, h = q[:, 0], q[:, 1], q[:, 2]
+        # axial excess beyond a closed end (an open end extends the column)
+        e = np.zeros_like(h)
+        c = np.ones_like(h)
+        if self.closed[0]:
+            m = h < 0
+            e[m], c[m] = h[m], self.caps[0]
+        if self.closed[1]:
+            m = h > self.length
+            e[m], c[m] = h[m] - self.length, self.caps[1]
+        a, b = self.radii
+        s = np.sqrt((x / a) ** 2 + (y / b) ** 2 + (e / c) ** 2)
+        return x, y, h, e, s
+
+    def _signed(self, x, y, e, s) -> np.ndarray:
+        norm = np.sqrt(x ** 2 + y ** 2 + e ** 2)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return np.where(s > 0, norm * (1.0 - 1.0 / s), -min(self.radii))
+
     def coords(self, points: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Section coordinates ``(r, theta, h)`` of ``points`` (n, 3).
 
@@ -134,28 +157,18 @@ class SectionShape:
         h : (n,) float
             Position along the axis from ``start``, metres.
         """
-        q = self.local(points)
-        x, y, h = q[:, 0], q[:, 1], q[:, 2]
+        x, y, h, e, s = self._scaled(points)
         theta = np.mod(np.arctan2(y, x), 2 * np.pi)
-        # axial excess beyond a closed end (an open end extends the column)
-        e = np.zeros_like(h)
-        c = np.ones_like(h)
-        if self.closed[0]:
-            m = h < 0
-            e[m], c[m] = h[m], self.caps[0]
-        if self.closed[1]:
-            m = h > self.length
-            e[m], c[m] = h[m] - self.length, self.caps[1]
-        a, b = self.radii
-        s = np.sqrt((x / a) ** 2 + (y / b) ** 2 + (e / c) ** 2)
-        norm = np.sqrt(x ** 2 + y ** 2 + e ** 2)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.where(s > 0, norm * (1.0 - 1.0 / s), -min(a, b))
-        return r, theta, h
+        return self._signed(x, y, e, s), theta, h
 
     def distance(self, points: np.ndarray) -> np.ndarray:
         """(n,) unsigned distance from ``points`` (n, 3) to the model surface, metres."""
-        return np.abs(self.coords(points)[0])
+        x, y, _, e, s = self._scaled(points)
+        return np.abs(self._signed(x, y, e, s))
+
+    def contains(self, points: np.ndarray) -> np.ndarray:
+        """(n,) bool: ``points`` (n, 3) inside the model surface (``coords``' r < 0)."""
+        return self._scaled(points)[-1] < 1.0
 
     def surface_points(self, n_theta: int = 24, n_h: int = 12) -> np.ndarray:
         """(m, 3) points on the column and closed caps, for drawing and tests."""

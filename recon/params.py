@@ -758,6 +758,12 @@ class FitParams:
                                            # volume score ties right and wrong torsos, the points do not (chosen)
     match_explain_points: int = field(default=4000,  # 2.3(1): points sampled (fit_seed) for that count (chosen)
         metadata={"help": "points sampled (fit_seed) to count the explained ones", "unit": "", "range": (10, 10000000)})
+    match_max_points: int = field(default=20000,  # 2.2-2.3(1): the volume and the coarse match use a subsample
+        metadata={"help": "points the volume and the coarse match use, subsampled (the fine fit uses up to fit_max_points)", "unit": "", "range": (100, 100000000)})
+                                           # (fit_seed) of at most this many points (a 10 mm scan has 8-11
+                                           # thousand: unchanged), so a finer scan is matched on a coarser volume,
+                                           # then adjusted on up to fit_max_points (coarse to fine; chosen: 12000
+                                           # and 20000 on the tune sets at 5 mm)
     match_alt_min_turn: float = field(default=10.0,  # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
         metadata={"help": "an alternative's torso axis is turned at least this", "unit": "deg", "range": (0, 180)})
     fit_near_distance: float = field(default=0.05,  # 2.3(2): points this near a section surface adjust it, m

@@ -70,8 +70,7 @@ class Scorer:
         if np.any(i1 <= i0):
             return
         g = np.stack(np.meshgrid(*[np.arange(a, b) for a, b in zip(i0, i1)], indexing="ij"), -1).reshape(-1, 3)
-        r, _, _ = shape.coords(g * v.size + v.origin)
-        g = g[r < 0]
+        g = g[shape.contains(g * v.size + v.origin)]
         self.w[g[:, 0], g[:, 1], g[:, 2]] = np.minimum(self.w[g[:, 0], g[:, 1], g[:, 2]], self.claimed)
         self.taken[g[:, 0], g[:, 1], g[:, 2]] = True
 
@@ -280,11 +279,10 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
             continue
         kept.append(i)
         elbow = root + L1 * dirs[i]
-        s2 = distal(elbow, dirs[i], F)
-        tot = s1[i] * L1 + s2 * L2
-        tot[dirs @ dirs[i] < cos_max] = -np.inf
-        tot[shin_up(dirs[i], dirs)] = -np.inf
-        tot[(L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)] = -np.inf
+        ok = ~((dirs @ dirs[i] < cos_max) | shin_up(dirs[i], dirs)
+               | ((L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)))
+        tot = np.full(len(dirs), -np.inf)
+        tot[ok] = s1[i] * L1 + distal(elbow, dirs[i], F[ok]) * L2   # only the bends a chain can take
         j = int(np.argmax(tot))
         if tot[j] > best[0]:
             best = (tot[j], dirs[i], dirs[j])
@@ -292,16 +290,35 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
             break
     _, d1, d2 = best
 
+    # the polish below evaluates one chain at a time: the tangent bases of d1 and d2 are fixed, and
+    # both sections' samples are looked up in one call (the same numbers as `tangent_dir`, `distal`)
+    u1, u2 = perp(d1), perp(d2)
+    w1, w2 = cross(d1, u1), cross(d2, u2)
+    loc1 = _LIMB_T * np.array([r1[0], r1[1], L1])
+    loc2 = _LIMB_T * np.array([r2[0], r2[1], L2])
+    n1 = len(_LIMB_T)
+
+    def turned(d0, u, w, a, b):
+        return unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
+
     def total(x):
-        a = tangent_dir(d1, x[0], x[1])
-        b = tangent_dir(d2, x[2], x[3])
+        a = turned(d1, u1, w1, x[0], x[1])
+        b = turned(d2, u2, w2, x[2], x[3])
         if a @ b < cos_max or a @ outward < -params.match_max_adduction or raised(a) or shin_up(a, b) or \
                 (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
             return 10.0
         e = root + L1 * a
         fa = frames_from_dirs(a[None])
-        s1 = _shell_score(scorer, root, fa, L1, r1) if shell else _column_score(scorer, root, fa, L1, r1, _LIMB_T)
-        return -(s1[0] * L1 + distal(e, a, frames_from_dirs(b[None]))[0] * L2)
+        if shell:
+            s1 = _shell_score(scorer, root, fa, L1, r1)
+            return -(s1[0] * L1 + distal(e, a, frames_from_dirs(b[None]))[0] * L2)
+        p2 = e + loc2 @ frames_from_dirs(b[None])
+        w = scorer.lookup(np.concatenate([root + loc1 @ fa, p2], axis=-2))
+        w2_ = w[:, n1:]
+        h = np.clip((p2 - root) @ a, 0.0, L1)
+        inside = np.linalg.norm(p2 - root - h[..., None] * a, axis=-1) < r1[0] + r2[0]
+        s2 = np.where(inside, np.minimum(w2_, scorer.claimed), w2_).mean(axis=-1)
+        return -(w[:, :n1].mean(axis=-1)[0] * L1 + s2[0] * L2)
 
     simplex = np.vstack([np.zeros(4), np.eye(4) * 0.12])
     res = minimize(total, np.zeros(4), method="Nelder-Mead",
