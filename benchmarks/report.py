@@ -101,16 +101,26 @@ class GateResult:
         return "\n".join(lines)
 
 
+#: Errors that are a method's honest answer ("this cloud cannot be reconstructed"), not a defect:
+#: a job failing with one is a refusal; any other error is a crash, which the gate fails on.
+REFUSALS = ("ReconError",)
+
+
+def _keyed(table):
+    """``table`` with ``body`` keyed ``"name [preset]"`` for presets other than ``paper``."""
+    import numpy as np
+
+    if "scanner.preset" not in table.columns:
+        return table
+    preset = table["scanner.preset"].fillna("paper").astype(str)
+    return table.assign(body=np.where(preset == "paper", table["body"].astype(str),
+                                      table["body"].astype(str) + " [" + preset + "]"))
+
+
 def tracked_values(table) -> dict:
     """{method: {posture: {metric: mean over the ok jobs, "n_jobs": count}}} of `TRACKED`; a
     posture scanned with a preset other than ``paper`` is keyed ``"name [preset]"``."""
-    import numpy as np
-
-    ok = table[table["status"] == "ok"]
-    if "scanner.preset" in ok.columns:  # a posture scanned with another preset is its own entry
-        preset = ok["scanner.preset"].fillna("paper").astype(str)
-        ok = ok.assign(body=np.where(preset == "paper", ok["body"].astype(str),
-                                     ok["body"].astype(str) + " [" + preset + "]"))
+    ok = _keyed(table[table["status"] == "ok"])
     out: dict = {}
     for (method, body), group in ok.groupby(["method", "body"], sort=True):
         values = {"n_jobs": int(len(group))}
@@ -138,9 +148,20 @@ def check_gate(table, baseline: dict) -> GateResult:
     A tracked metric of a (method, posture) of the baseline is a regression when it is worse than
     the baseline by more than its tolerance (the baseline file's own ``tolerances`` win over
     `TRACKED`), when it is missing or NaN now, or when the (method, posture) has no successful job.
+    A job that crashed (an error other than a `REFUSALS` one) is a regression wherever it is; a
+    refusal of a (method, posture) the baseline does not hold is a note.
     """
     current = tracked_values(table)
     result = GateResult()
+    failed = _keyed(table[table["status"] != "ok"])
+    for row in failed.itertuples():
+        error = str(getattr(row, "error", "") or "unknown error").strip().splitlines()[0][:300]
+        kind = error.split(":", 1)[0].strip()
+        if kind in REFUSALS:
+            if row.body not in (baseline.get("metrics") or {}).get(row.method, {}):
+                result.notes.append(f"{row.method} / {row.body}: refused ({error})")
+        else:
+            result.regressions.append(f"{row.method} / {row.body}: crashed ({error})")
     tolerances = {m: {"better": b, "abs": a, "rel": r} for m, (b, a, r) in TRACKED.items()}
     tolerances.update(baseline.get("tolerances") or {})
     for method, bodies in sorted((baseline.get("metrics") or {}).items()):

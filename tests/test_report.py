@@ -211,6 +211,26 @@ def test_gate_passes_on_itself_and_lists_regressions(tmp_path):
     assert result.regressions == ["simple / t_pose: no successful job (the baseline has 8)"]
 
 
+def test_gate_fails_on_a_crash_and_notes_a_refusal(tmp_path):
+    import pandas as pd
+
+    table = fill(tmp_path / "base").read()
+    baseline = report.make_baseline(table, sweep="fake")
+    row = table.iloc[0].to_dict()
+    refused = {**row, "body": "new_body", "status": "error", "error": "ReconError: the fit explains 49 %"}
+    crashed = {**row, "body": "other_body", "status": "error", "error": "IndexError: index 6 is out of bounds"}
+    result = report.check_gate(pd.concat([table, pd.DataFrame([refused])], ignore_index=True), baseline)
+    assert result.passed and f"{row['method']} / new_body: refused (ReconError: the fit explains 49 %)" in result.notes
+    result = report.check_gate(pd.concat([table, pd.DataFrame([crashed])], ignore_index=True), baseline)
+    assert result.regressions == [f"{row['method']} / other_body: crashed (IndexError: index 6 is out of bounds)"]
+    # a refusal of a posture the baseline holds is a regression (no successful job for it)
+    body = row["body"]
+    gone = table[~((table["method"] == row["method"]) & (table["body"] == body))]
+    result = report.check_gate(pd.concat([gone, pd.DataFrame([{**row, "status": "error",
+                                                                 "error": "ReconError: no"}])]), baseline)
+    assert any(r.startswith(f"{row['method']} / {body}: no successful job") for r in result.regressions)
+
+
 def test_gate_tolerances_come_from_the_baseline_file(tmp_path):
     table = fill(tmp_path / "a").read()
     baseline = report.make_baseline(table)
