@@ -274,8 +274,11 @@ def sampled_bodies(spec, *, where: str = "sweep") -> list[Path]:
     ``~/.cache/bodyscan``) under ``corpus/g<generator version>/s<seed>``. A body is a function of
     (seed, index) and the generator's version, so a kept one is the one a new draw would give."""
     from bodyscan.poses import BodyError
+    from bodyscan.poses.generate import GENERATOR_VERSION
+    from bodyscan.poses.sample import sample
 
     entries = spec if isinstance(spec, list) else [spec]
+    root = Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "bodyscan")
     paths = []
     for entry in entries:
         if not isinstance(entry, dict) or set(entry) - {"seed", "n", "start"} or not {"seed", "n"} <= set(entry):
@@ -285,10 +288,6 @@ def sampled_bodies(spec, *, where: str = "sweep") -> list[Path]:
                 or seed < 0 or n < 1 or start < 0 or n > 10000:
             raise BenchError(f"{where}: sample: seed and start must be integers >= 0 and n in 1..10000, "
                              f"got {entry!r}")
-        from bodyscan.poses.generate import GENERATOR_VERSION
-        from bodyscan.poses.sample import sample
-
-        root = Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "bodyscan")
         folder = root / "corpus" / f"g{GENERATOR_VERSION}" / f"s{seed}"
         missing = sum(not any(folder.glob(f"s{seed}_{i:04d}_*.npz")) for i in range(start, start + n))
         if missing:

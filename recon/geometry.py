@@ -45,10 +45,11 @@ def unit(v):
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
-def tangent_dir(d0: np.ndarray, a: float, b: float) -> np.ndarray:
-    """Unit direction near ``d0`` moved by angles (a, b) radians in its tangent plane."""
-    u = perp(d0)
-    w = cross(d0, u)
+def tangent_dir(d0: np.ndarray, a: float, b: float, basis=None) -> np.ndarray:
+    """Unit direction near ``d0`` moved by angles (a, b) radians in its tangent plane, spanned by
+    ``basis`` = (u, w) when given (a search calling this many times about one ``d0``), else by
+    ``perp(d0)`` and ``d0 x perp(d0)``."""
+    u, w = basis if basis is not None else (perp(d0), cross(d0, perp(d0)))
     return unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
 
 

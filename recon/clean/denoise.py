@@ -81,6 +81,13 @@ def robust_scale(residual: np.ndarray, floor: float = 1e-6) -> float:
     return max(1.4826 * float(np.median(np.abs(residual))), floor)
 
 
+def tukey_weights(residual: np.ndarray, scale: float) -> np.ndarray:
+    """Tukey's biweight of each residual at ``scale``: ``(1 - u^2)^2`` with ``u`` the residual in
+    `TUKEY` scales, 0 beyond (an outlier has no say)."""
+    u = residual / (TUKEY * scale)
+    return np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+
+
 def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, scale: float | None = None,
                iterations: int = 2, distance: np.ndarray | None = None, radius: float = np.inf,
                min_points: int = MIN_FIT, workers: int = 1) -> LocalFit:
@@ -136,8 +143,7 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
                                                    base[a:a + CHUNK])
         beta = beta0 if whole is not None else f.fit(f.w0)
         for _ in range(iterations):
-            u = (f.z - f.predict(beta)) / (TUKEY * scale)
-            beta = f.fit(np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0) * f.w0)
+            beta = f.fit(tukey_weights(f.z - f.predict(beta), scale) * f.w0)
         normal[a:a + CHUNK] = f.normal
         resid[a:a + CHUNK] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
         center[a:a + CHUNK], frame[a:a + CHUNK], size[a:a + CHUNK] = f.center, f.frame, f.size

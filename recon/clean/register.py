@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from ..geometry import rotvec
-from .denoise import TUKEY, local_fits, robust_scale
+from .denoise import local_fits, robust_scale, tukey_weights
 
 
 @dataclass(frozen=True, eq=False)
@@ -89,6 +89,16 @@ def _normals(query: np.ndarray, points: np.ndarray, tree, k: int) -> np.ndarray:
     _, nb = tree.query(query, k=k)
     q = points[nb] - points[nb].mean(axis=1, keepdims=True)
     return np.linalg.eigh(np.swapaxes(q, 1, 2) @ q)[1][:, :, 0]
+
+
+def truncated_step(J: np.ndarray, w: np.ndarray, res: np.ndarray, scale: float, max_error: float):
+    """One weighted Gauss-Newton step for residuals ``res`` (m,) with Jacobian ``J`` (m, k) and
+    weights ``w`` (m,), truncated to the eigen-directions of the normal matrix whose standard error
+    at ``scale`` is below ``max_error`` (a rotation's in metres at 1 m): the data move only what
+    they measure. Returns the step (k,) and which eigen-directions it used (k,) bool."""
+    lam, vec = np.linalg.eigh(J.T @ (w[:, None] * J))
+    keep = scale / np.sqrt(np.maximum(lam, 1e-300)) < max_error
+    return -vec[:, keep] @ ((vec[:, keep].T @ (J.T @ (w * res))) / lam[keep]), keep
 
 
 def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: float = 0.005,
@@ -172,16 +182,8 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
                     break
                 res, nt, ps = fit.residual[same], fit.normal[same], p[ok]
                 scale = robust_scale(res, floor=1e-5)
-                u = res / (TUKEY * scale)
-                w = np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
                 J = np.column_stack([np.cross(ps - center, nt), nt])
-                H = J.T @ (w[:, None] * J)
-                g = J.T @ (w * res)
-                lam, vec = np.linalg.eigh(H)
-                # standard error of each eigen-direction (a rotation's in metres at 1 m)
-                se = scale / np.sqrt(np.maximum(lam, 1e-300))
-                keep = se < max_error
-                step = -vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep])
+                step, keep = truncated_step(J, tukey_weights(res, scale), res, scale, max_error)
                 dr = rotvec(step[:3])
                 r_h = dr @ r_h
                 t_h = dr @ t_h + step[3:]
@@ -306,16 +308,12 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         p, n = p[ok], normal[j[ok]]
         res = np.einsum("ij,ij->i", p @ basis.T - mid[j[ok]], n @ basis.T)
         scale = robust_scale(res, floor=1e-5)
-        u_ = res / (TUKEY * scale)
-        w = np.where(np.abs(u_) < 1, (1 - u_ * u_) ** 2, 0.0)
         J = np.column_stack([np.cross(p, n), n]) @ motions.T    # the rotation about a, the shifts across
-        H = J.T @ (w[:, None] * J)
-        g = J.T @ (w * res)
-        lam, vec = np.linalg.eigh(H)
         # standard errors at the residuals' scale, at most the outline's own resolution (a cell's
         # uniform spread): the residuals of a wrong start would hide the directions that correct them
-        keep = min(scale, spacing / np.sqrt(12)) / np.sqrt(np.maximum(lam, 1e-300)) < max_error
-        step = motions.T @ (-vec[:, keep] @ ((vec[:, keep].T @ g) / lam[keep]))
+        step, keep = truncated_step(J, tukey_weights(res, scale), res, min(scale, spacing / np.sqrt(12)),
+                                    max_error)
+        step = motions.T @ step
         dr = rotvec(step[:3])
         r_1, t_1 = dr @ r_1, dr @ t_1 + step[3:]
         limit = max(4 * scale + spacing, 0.7 * limit)

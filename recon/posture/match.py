@@ -259,16 +259,19 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
             return np.zeros(np.broadcast_shapes(np.shape(d1)[:-1], np.shape(d2)[:-1]), bool)
         return d2 @ R[:, 2] > np.maximum(d1 @ R[:, 2], 0.0) + params.match_thigh_max_rise
 
-    def distal(elbow, d1, frames):
-        # distal samples inside the proximal column weigh 0: no folding back over the same limb
-        if shell:
-            return _shell_score(scorer, elbow, frames, L2, r2, avoid=(root, d1, L1, r1[0]))
-        loc = _LIMB_T * np.array([r2[0], r2[1], L2])
-        pts = elbow + loc @ frames
-        w = scorer.lookup(pts)
+    loc2 = _LIMB_T * np.array([r2[0], r2[1], L2])
+
+    def folded_back(pts, w, d1):
+        # distal samples inside the proximal column weigh as claimed: no folding back over the same limb
         h = np.clip((pts - root) @ d1, 0.0, L1)
         inside = np.linalg.norm(pts - root - h[..., None] * d1, axis=-1) < r1[0] + r2[0]
         return np.where(inside, np.minimum(w, scorer.claimed), w).mean(axis=-1)
+
+    def distal(elbow, d1, frames):
+        if shell:
+            return _shell_score(scorer, elbow, frames, L2, r2, avoid=(root, d1, L1, r1[0]))
+        pts = elbow + loc2 @ frames
+        return folded_back(pts, scorer.lookup(pts), d1)
 
     order = np.argsort(-s1)
     cos_max = np.cos(np.radians(params.match_max_bend if prox.startswith("thigh") else params.match_max_elbow_bend))
@@ -291,19 +294,14 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
     _, d1, d2 = best
 
     # the polish below evaluates one chain at a time: the tangent bases of d1 and d2 are fixed, and
-    # both sections' samples are looked up in one call (the same numbers as `tangent_dir`, `distal`)
-    u1, u2 = perp(d1), perp(d2)
-    w1, w2 = cross(d1, u1), cross(d2, u2)
+    # both sections' samples are looked up in one call (the same numbers as `distal`)
+    basis1, basis2 = (perp(d1), cross(d1, perp(d1))), (perp(d2), cross(d2, perp(d2)))
     loc1 = _LIMB_T * np.array([r1[0], r1[1], L1])
-    loc2 = _LIMB_T * np.array([r2[0], r2[1], L2])
     n1 = len(_LIMB_T)
 
-    def turned(d0, u, w, a, b):
-        return unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
-
     def total(x):
-        a = turned(d1, u1, w1, x[0], x[1])
-        b = turned(d2, u2, w2, x[2], x[3])
+        a = tangent_dir(d1, x[0], x[1], basis1)
+        b = tangent_dir(d2, x[2], x[3], basis2)
         if a @ b < cos_max or a @ outward < -params.match_max_adduction or raised(a) or shin_up(a, b) or \
                 (L1 * a + L2 * b) @ outward < -params.match_max_adduction * (L1 + L2):
             return 10.0
@@ -314,11 +312,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
             return -(s1[0] * L1 + distal(e, a, frames_from_dirs(b[None]))[0] * L2)
         p2 = e + loc2 @ frames_from_dirs(b[None])
         w = scorer.lookup(np.concatenate([root + loc1 @ fa, p2], axis=-2))
-        w2_ = w[:, n1:]
-        h = np.clip((p2 - root) @ a, 0.0, L1)
-        inside = np.linalg.norm(p2 - root - h[..., None] * a, axis=-1) < r1[0] + r2[0]
-        s2 = np.where(inside, np.minimum(w2_, scorer.claimed), w2_).mean(axis=-1)
-        return -(w[:, :n1].mean(axis=-1)[0] * L1 + s2[0] * L2)
+        return -(w[:, :n1].mean(axis=-1)[0] * L1 + folded_back(p2, w[:, n1:], a)[0] * L2)
 
     simplex = np.vstack([np.zeros(4), np.eye(4) * 0.12])
     res = minimize(total, np.zeros(4), method="Nelder-Mead",

@@ -801,14 +801,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                                                                cover_max_edge=0.0)
 
     def run(job):
-        j, idx, shape = job[:3]
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
-        vd = None if view_dir is None or not drop_inner else (
-            view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
-        f = idx[section_surface(points[idx], shape, own, spacing, vd)]
-        if len(job) > 4:  # only faces with an edge between these points (the rest: other charts')
-            f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
-        return j, f
+        return job[0], _chart_faces(points, job[1], job, own, spacing, view_dir if drop_inner else None)
 
     if params.workers > 1 and len(jobs) > 1:  # numpy (and Qhull) release the GIL: in parallel
         from concurrent.futures import ThreadPoolExecutor
@@ -830,11 +824,23 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         more, more_sec = rejoin_left_out(points, faces, jobs, sp, spacing, params.rejoin_edge, view_dir, tree)
         inner = (member.sum(axis=1) >= 2)[more].all(axis=1)     # as in the merge (paper 3.3)
         more, more_sec = more[~inner], more_sec[~inner]
-        if drop_inner and view_dir is not None:
+        if view_dir is not None:
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     faces = orient_faces(points, faces, sec, fit, view_dir)
     return faces, sec, skipped
+
+
+def _chart_faces(points: np.ndarray, idx: np.ndarray, job, params: SurfaceParams, spacing: float,
+                 view_dir=None) -> np.ndarray:
+    """(k, 3) faces, global indices, of chart ``job`` (`reconstruct_surfaces`' jobs) triangulated
+    over the points ``idx``; a far part's chart keeps only faces with an edge between its own
+    points (the rest are other charts')."""
+    vd = None if view_dir is None else (view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
+    f = idx[section_surface(points[idx], job[2], params, spacing, vd)]
+    if len(job) > 4:
+        f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
+    return f
 
 
 def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: SurfaceParams, spacing: float,
@@ -878,7 +884,7 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
     out, out_sec = [], []
     r = edge * spacing
     for job in jobs:
-        j, idx, shape = job[:3]
+        j, idx = job[:2]
         left = idx[~used[idx]]
         if len(left) == 0:
             continue
@@ -889,11 +895,8 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
             continue
         own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
         own = dataclasses.replace(own, max_edge_factor=edge, hull_edge_factor=edge, hull_edge_min=0.0)
-        vd = None if view_dir is None else (view_dir[sub] if np.ndim(view_dir) == 2 else view_dir)
-        f = sub[section_surface(points[sub], shape, own, spacing, vd)]
+        f = _chart_faces(points, sub, job, own, spacing, view_dir)
         f = f[(~used[f]).any(axis=1)]
-        if len(job) > 4:
-            f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
         out.append(f)
         out_sec.append(np.full(len(f), j, dtype=np.int8))
     if not out:
@@ -902,8 +905,7 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
     k_old = face_keys(np.concatenate([faces, f]))
     new = ~np.isin(k_old[len(faces):], k_old[:len(faces)])
     f, s = f[new], s[new]
-    _, first = np.unique(face_keys(f), return_index=True) if len(f) else (None, np.zeros(0, dtype=np.int64))
-    first = np.sort(first)
+    first = np.sort(np.unique(face_keys(f), return_index=True)[1]) if len(f) else np.zeros(0, dtype=np.int64)
     f, s = f[first], s[first]
     keep = face_areas(points, f) > 1e-12
     return f[keep], s[keep]
