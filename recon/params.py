@@ -400,8 +400,7 @@ class SurfaceParams:
         view, as the camera saw it (`recon.surface.mesh.view_edge_length`): the flanks of limbs and
         trunk, steep to the camera, are long in 3D but a grid step apart to it (paper: 3D, 2);
         at least the 3D length over ``peel_stretch`` (two surfaces one behind the other, a thigh
-        over a calf in a squat, are near across the view too: bridging on the shipped squat 0.39
-        -> 0.86 % without it, 0.37 % with 1.5).
+        over a calf in a squat, are near across the view too).
     cover_max_edge : float
         Metres: triangles longer than this (as their camera saw them, never below the peel's
         limit) are removed, so holes wider than it stay open (paper: every hole covered, 0).
@@ -762,8 +761,7 @@ class FitParams:
         metadata={"help": "points the volume and the coarse match use, subsampled (the fine fit uses up to fit_max_points)", "unit": "", "range": (100, 100000000)})
                                            # (fit_seed) of at most this many points (a 10 mm scan has 8-11
                                            # thousand: unchanged), so a finer scan is matched on a coarser volume,
-                                           # then adjusted on up to fit_max_points (coarse to fine; chosen: 12000
-                                           # and 20000 on the tune sets at 5 mm)
+                                           # then adjusted on up to fit_max_points (coarse to fine)
     match_alt_min_turn: float = field(default=10.0,  # 2.3(1): an alternative's torso axis turned at least this, degrees (chosen)
         metadata={"help": "an alternative's torso axis is turned at least this", "unit": "deg", "range": (0, 180)})
     fit_near_distance: float = field(default=0.05,  # 2.3(2): points this near a section surface adjust it, m

@@ -21,8 +21,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
 1. Volume data (`recon.posture.volume`): voxel size from the sparsest part's density, clamped to
    [`voxel_min`, `voxel_max`]. The volume and the coarse match (steps 2-4) use at most
    `match_max_points` of the points, the fine adjustment (step 5) up to `fit_max_points`: a scan
-   finer than 10 mm is matched on a coarser volume, then adjusted on its own points (coarse to fine;
-   at 5 mm on the tune sets the match took half the time and met the targets as often).
+   finer than 10 mm is matched on a coarser volume, then adjusted on its own points (coarse to fine:
+   the match's cost no longer grows with the scan's density).
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
    model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
    weighted n. To work for any posture we start from the centre of the thickest part of the volume
