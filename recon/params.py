@@ -520,7 +520,7 @@ class SurfaceParams:
         "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     close_voxel: float = field(default=0.008, metadata={
-        "help": "proposed-closed: grid step of the closed surface (recon.surface.complete.closed_surface)",
+        "help": "proposed-closed: grid step of the closed surface (recon.surface.closed.closed_surface)",
         "unit": "m", "range": (0.001, 0.05)})
     close_cell: float = field(default=1.5, metadata={
         "help": "proposed-closed: cell size of the sections' radial height fields",

@@ -296,7 +296,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     method : {"proposed", "proposed-closed", "paper", "simple"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
         ``proposed-closed`` (beyond the paper): ``proposed`` with the unseen surface closed
-        (`recon.surface.complete.closed_surface`): watertight, its vertices new (after the input points,
+        (`recon.surface.closed.closed_surface`): watertight, its vertices new (after the input points,
         which it leaves in no face); ``paper``: the same steps with every rule of ours off
         (`recon.params.PAPER`), the paper's method as itself; ``simple``: the paper's baseline,
         T_d threshold only.
@@ -408,7 +408,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     faces = keep[faces]
     unmeshed = unmeshed_count(len(raw), faces)
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
-        from .surface.complete import closed_surface
+        from .surface.closed import closed_surface
 
         t0 = time.perf_counter()
         sp = params.surface

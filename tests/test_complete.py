@@ -1,4 +1,4 @@
-"""Completion beyond the paper (recon.surface.complete): hands and feet meshed, holes filled, a closed surface."""
+"""Completion beyond the paper (recon.surface.complete, recon.surface.closed): hands and feet meshed, holes filled, a closed surface."""
 
 import warnings
 
@@ -8,7 +8,7 @@ import trimesh
 
 from bodyscan.benchmarks.metrics import is_watertight
 from bodyscan.recon import ReconParams, reconstruct
-from bodyscan.recon.surface.complete import marching_tetrahedra, radial_field
+from bodyscan.recon.surface.closed import marching_tetrahedra, radial_field
 from bodyscan.recon.model import SECTIONS, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
