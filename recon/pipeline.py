@@ -412,10 +412,14 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         t0 = time.perf_counter()
         sp = params.surface
+        hd = _check_head(head, len(raw))
+        view = None if vd is None else (np.broadcast_to(vd, p.shape), None if hd is None else hd[keep])
         solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
                   if name in fit.sections and name not in skipped] + list(extra)
         cv, cf, face_section = closed_surface(mesh_points, solids, spacing, sp.close_voxel,
-                                              sp.close_cell, sp.close_envelope)
+                                              sp.close_cell, sp.close_envelope,
+                                              sp.close_band, (vertices, faces, face_section),
+                                              view, sp.close_carve)
         vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start

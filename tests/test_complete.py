@@ -8,7 +8,7 @@ import trimesh
 
 from bodyscan.benchmarks.metrics import is_watertight
 from bodyscan.recon import ReconParams, reconstruct
-from bodyscan.recon.surface.closed import marching_tetrahedra, radial_field
+from bodyscan.recon.surface.closed import marching_tetrahedra, radial_field, seen_air, seen_distance
 from bodyscan.recon.model import SECTIONS, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
@@ -118,6 +118,46 @@ def test_marching_tetrahedra_closes_a_sphere():
     assert is_watertight(f) and m.is_watertight and m.is_winding_consistent
     assert m.volume > 0 and abs(m.volume / (4 / 3 * np.pi * 0.08 ** 3) - 1) < 0.05
     assert np.abs(np.linalg.norm(v - 0.115, axis=1) - 0.08).max() < 0.002
+
+
+def test_seen_distance_is_the_signed_distance_to_a_sphere_and_stops_at_a_hole():
+    """An open sphere mesh of radius 10 cm (its cap z > 6 cm removed): the signed distance along
+    its normals within 0.5 mm of the analytic one over the mesh, and `beside` past the rim."""
+    m = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    keep = m.triangles_center[:, 2] < 0.06
+    v, f = m.vertices, m.faces[keep]
+    spacing = float(m.edges_unique_length.mean())
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(400, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u = u[u[:, 2] < 0.4]
+    r = rng.uniform(0.085, 0.115, len(u))
+    dist, beside, _ = seen_distance(v, f, u * r[:, None], spacing)
+    assert np.abs(dist - (0.1 - r)).max() < 0.0005 and beside.max() < spacing
+    _, beside, _ = seen_distance(v, f, np.array([[0, 0, 0.1], [0, 0, 0.0995]]), spacing)
+    assert beside.min() > 0.03    # over the hole: beside the mesh, by the hole's radius
+
+
+@pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
+def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
+    """A wall y = 0 with a 3 cm hole seen from -y (parallel, or from a camera 2 m away): a point in
+    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown."""
+    g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
+    g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
+    pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
+    if camera is None:
+        vd = np.tile([0.0, -1.0, 0.0], (len(pts), 1))
+    else:
+        vd = np.asarray(camera) - pts
+        vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    at = np.array([[0.02, -0.03, 0.01], [0.02, 0.03, 0.01], [0.5, -0.03, 0.0], [-0.05, -0.01, -0.05]])
+    air = seen_air(pts, vd, None, at, 0.005)
+    if camera is None:
+        expect = 0.03
+    else:   # the ray from the camera through at[0] meets the wall at t = c_y / (c_y - x_y)
+        c = np.asarray(camera)
+        expect = (c[1] / (c[1] - at[0, 1]) - 1) * np.linalg.norm(at[0] - c)
+    assert abs(air[0] - expect) < 0.002 and air[1] < -0.025 and (air[2:] == -np.inf).all()
 
 
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):

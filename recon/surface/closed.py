@@ -7,6 +7,11 @@ scanner did not see) are filled by a discrete Laplace equation within the model'
 values on a grid) and the union's surface is extracted by marching tetrahedra: one closed,
 consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
 holds another section's points, so no surface spans the air between two sections.
+
+The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
+same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
+out as the open mesh has it; and whatever lies in front of a surface a camera saw, along its line
+of sight, is air (`seen_air`).
 """
 
 from __future__ import annotations
@@ -257,8 +262,61 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     return out
 
 
+def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8):
+    """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (f, 3) int
+        The open mesh, wound outward.
+    at : (m, 3) float
+        Query positions, metres.
+    spacing : float
+        Median point spacing, metres: the width of the Gaussian weights.
+    k : int
+        Nearest mesh vertices averaged.
+
+    Returns
+    -------
+    dist : (m,) float
+        Positive inside: the Gaussian-weighted mean of the query's offsets along the ``k`` nearest
+        vertices' normals (a smooth signed distance through the vertices' tangent planes).
+    beside : (m,) float
+        The query's offset across the nearest vertex's normal, metres: small over the seen
+        surface, growing past the rim of a hole.
+    vertex : (m,) int
+        The nearest vertex (index into ``vertices``).
+    """
+    from scipy.spatial import cKDTree
+
+    faces = np.asarray(faces, dtype=np.int64)
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
+    vn = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    used = np.unique(faces)
+    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
+    vp = vertices[used]
+    k = min(k, len(used))
+    d, i = cKDTree(vp).query(at, k)
+    d, i = d.reshape(len(at), k), i.reshape(len(at), k)
+    off = at[:, None, :] - vp[i]
+    along = np.einsum("mkj,mkj->mk", off, vn[i])
+    w = np.exp(-(d / spacing) ** 2) + 1e-300
+    dist = -(w * along).sum(axis=1) / w.sum(axis=1)
+    beside = np.sqrt(np.maximum(d[:, 0] ** 2 - along[:, 0] ** 2, 0))
+    return dist, beside, used[i[:, 0]]
+
+
+#: Grid points of the seen surface's band are at most this far beside the open mesh (spacings).
+BAND_BESIDE = 1.0
+
+
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
-                   cell: float = 1.5, envelope: float = 0.3):
+                   cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
+                   view=None, carve: float = 1.0):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching tetrahedra.
 
@@ -280,6 +338,17 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         Spacings: cell size of the radial height fields.
     envelope : float
         Fill at most this times the section's width beyond its model radius.
+    band : float
+        Spacings: grid points over the open mesh, from this far outside it to half of it inside,
+        take their signed distance to it (`seen_distance`; 0 = off): the seen surface comes out
+        where the open mesh has it, the solids only close what it leaves open.
+    seen : (vertices (n', 3), faces (f', 3), face_section (f',)), optional
+        The open mesh (wound outward) and its faces' sections.
+    view : (view_dir (n, 3), head (n,) or None), optional
+        How ``points`` were seen (`seen_air`).
+    carve : float
+        Spacings: grid points farther than this in front of the surface a camera saw are outside
+        (0 = off).
 
     Returns
     -------
@@ -326,7 +395,111 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         F[box] = np.where(better, val, F[box])
         lab[box] = np.where(better, j, lab[box])
     # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
+    if seen is not None and band > 0:
+        _seen_band(F, lab, lo, voxel, spacing, band, *seen)
+    if view is not None and carve > 0:   # what a camera looked through is air
+        g = np.argwhere(F > -voxel)
+        air = seen_air(points, view[0], view[1], lo + voxel * g, spacing)
+        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], carve * spacing - air)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     vertices, faces, face_label = marching_tetrahedra(F, lo, voxel, lab)
     return vertices, faces, face_label.astype(np.int8)
+
+
+def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
+    """Overwrite ``F`` (and ``lab``) in the seen surface's band with the signed distance to the
+    open mesh (`seen_distance`), in place."""
+    from scipy.ndimage import binary_dilation
+
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return
+    used = np.unique(faces)
+    near = np.zeros(F.shape, dtype=bool)
+    vi = np.clip(np.round((vertices[used] - lo) / voxel).astype(np.int64), 0, np.array(F.shape) - 1)
+    near[tuple(vi.T)] = True
+    reach = int(np.ceil(max(band, BAND_BESIDE) * spacing / voxel)) + 1
+    near = binary_dilation(near, np.ones((3, 3, 3), dtype=bool), iterations=reach)
+    near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
+    g = np.argwhere(near)
+    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing)
+    over = (beside < BAND_BESIDE * spacing) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
+    g = g[over]
+    F[tuple(g.T)] = dist[over]
+    vsec = np.zeros(len(vertices), dtype=lab.dtype)
+    vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
+    lab[tuple(g.T)] = vsec[v[over]]
+
+
+def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
+    """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
+    at the body and depth increasing toward the camera, or None when its rays neither are parallel
+    nor meet in a centre (within ``spacing``)."""
+    a = view_dir.mean(axis=0)
+    a /= np.linalg.norm(a)
+    e1 = np.cross(a, [0.0, 0.0, 1.0] if abs(a[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
+        return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
+    # perspective: the centre nearest to every ray (p + t v)
+    P = np.eye(3)[None] - view_dir[:, :, None] * view_dir[:, None, :]
+    c = np.linalg.lstsq(P.sum(axis=0), np.einsum("nij,nj->i", P, points), rcond=None)[0]
+    off = c - points
+    if np.sqrt(max(float(np.mean(np.einsum("ni,nij,nj->n", off, P, off))), 0.0)) > spacing:
+        return None
+    dist = float(np.linalg.norm(off, axis=1).mean())
+
+    def project(x):
+        u = c - x
+        ua = u @ a
+        return dist * np.column_stack([u @ e1, u @ e2]) / ua[:, None], -np.linalg.norm(u, axis=1)
+    return project
+
+
+def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float) -> np.ndarray:
+    """(m,) how far (metres) each position ``at`` lies in front of the surface its camera saw: its
+    depth toward the camera beyond the nearest seen point of its pixel and the eight around it
+    (pixels of one ``spacing``); positive is air the camera looked through, -inf where no camera
+    saw a point along that line (unknown).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    view_dir : (n, 3) float
+        Unit directions toward the camera that saw each point.
+    head : (n,) int or None
+        The head of each point (None: the points grouped by their view direction when fewer than
+        16, else all from one camera).
+    at : (m, 3) float
+    spacing : float
+        Median point spacing, metres.
+    """
+    from scipy.ndimage import maximum_filter
+
+    if head is None:   # parallel heads by their direction, else one perspective camera
+        _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
+        head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
+    out = np.full(len(at), -np.inf)
+    for h in np.unique(head):
+        sel = np.flatnonzero(head == h)
+        project = _camera(points[sel], view_dir[sel], spacing)
+        if project is None or len(sel) < 10:
+            continue
+        uv, depth = project(points[sel])
+        o = uv.min(axis=0) - spacing
+        ij = np.floor((uv - o) / spacing).astype(np.int64)
+        shape = tuple(ij.max(axis=0) + 2)
+        z = np.full(shape, -np.inf)
+        np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
+        seen = np.isfinite(z)
+        z = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
+        xy, dx = project(at)
+        k = np.floor((xy - o) / spacing).astype(np.int64)
+        ok = ((k >= 0) & (k < np.array(shape))).all(axis=1)
+        air = np.full(len(at), -np.inf)
+        zk = z[k[ok, 0], k[ok, 1]]
+        air[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
+        out = np.maximum(out, air)
+    return out
