@@ -180,9 +180,28 @@ def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
     assert m.area_faces[air].sum() < 0.06 * m.area
 
 
-@pytest.mark.xfail(strict=True, reason="issue 15, open: 4.2 % of the closed surface's area stands more "
-                   "than 5 mm outside (max 4 cm): the hand's points clustered into the waist fatten its "
-                   "solid, the crown's last rows reach 1.6 cm past the head")
+def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
+    """The closed surface is as precise as the data where the scanner saw: 99 % of the true
+    surface within 4 mm of a scan point lies within 2 mm of it (the height fields alone: 96.9 %,
+    their 99th percentile 5 mm)."""
+    P, L, vd, fit, shapes = with_hand_and_foot
+    from scipy.spatial import cKDTree
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "proposed-closed", view_dir=vd, fit=fit)
+    m = trimesh.Trimesh(rec.vertices, rec.faces, process=False)
+    truth = np.concatenate([s.surface_points(64, 32) for s in fit.sections.values()])
+    truth = truth[outside(shapes, truth) > -1e-4]
+    seen = truth[cKDTree(P).query(truth)[0] < 0.004]
+    seen = seen[np.random.default_rng(0).choice(len(seen), 1000, replace=False)]
+    _, dist, _ = trimesh.proximity.closest_point(m, seen)
+    assert np.mean(dist < 0.002) > 0.99
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15, open: 2.8 % of the closed surface's area stands more "
+                   "than 5 mm outside (max 3.6 cm; 3.8 % without the seen band): 1.4 % on the waist, "
+                   "whose solid the hand's points clustered into it fatten, the crown's last rows past the head")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
