@@ -141,7 +141,8 @@ def test_seen_distance_is_the_signed_distance_to_a_sphere_and_stops_at_a_hole():
 @pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
 def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
     """A wall y = 0 with a 3 cm hole seen from -y (parallel, or from a camera 2 m away): a point in
-    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown."""
+    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown
+    (over the hole, air when the silhouettes count)."""
     g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
     g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
     pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
@@ -158,6 +159,10 @@ def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
         c = np.asarray(camera)
         expect = (c[1] / (c[1] - at[0, 1]) - 1) * np.linalg.norm(at[0] - c)
     assert abs(air[0] - expect) < 0.002 and air[1] < -0.025 and (air[2:] == -np.inf).all()
+    # with the silhouettes: the hole's middle, two pixels from any point, is air; beside the
+    # picture, still unknown
+    air = seen_air(pts, vd, None, at, 0.005, background=1)
+    assert abs(air[0] - expect) < 0.002 and air[2] == -np.inf and air[3] == np.inf
 
 
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):

@@ -10,8 +10,9 @@ holds another section's points, so no surface spans the air between two sections
 
 The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
 same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
-out as the open mesh has it; and whatever lies in front of a surface a camera saw, along its line
-of sight, is air (`seen_air`).
+out as the open mesh has it (blended into the solids past its rims); and whatever lies in front of
+a surface a camera saw, along its line of sight, or beside the silhouettes of every camera, is air
+(`seen_air`).
 """
 
 from __future__ import annotations
@@ -310,13 +311,15 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     return dist, beside, used[i[:, 0]]
 
 
-#: Grid points of the seen surface's band are at most this far beside the open mesh (spacings).
-BAND_BESIDE = 1.0
+#: Spacings beside the open mesh (past a hole's rim): up to BAND_BESIDE the seen surface's band
+#: takes the signed distance to it, from there to BAND_BLEND a blend of it and the solids' value
+#: (so that the fill meets the rim without a step).
+BAND_BESIDE, BAND_BLEND = 1.0, 2.0
 
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
-                   view=None, carve: float = 1.0):
+                   view=None, carve: float = 1.0, background: int = 1):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching tetrahedra.
 
@@ -349,6 +352,9 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     carve : float
         Spacings: grid points farther than this in front of the surface a camera saw are outside
         (0 = off).
+    background : int
+        Pixels (of one spacing): grid points that every head sees with no point within this many
+        pixels, beside the silhouettes, are outside too (0 = off; `seen_air`).
 
     Returns
     -------
@@ -397,10 +403,11 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
     if seen is not None and band > 0:
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
-    if view is not None and carve > 0:   # what a camera looked through is air
+    if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
         g = np.argwhere(F > -voxel)
-        air = seen_air(points, view[0], view[1], lo + voxel * g, spacing)
-        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], carve * spacing - air)
+        air = seen_air(points, view[0], view[1], lo + voxel * g, spacing, background)
+        cut = np.where(np.isposinf(air), -spacing, carve * spacing - air if carve > 0 else np.inf)
+        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     vertices, faces, face_label = marching_tetrahedra(F, lo, voxel, lab)
@@ -409,7 +416,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     """Overwrite ``F`` (and ``lab``) in the seen surface's band with the signed distance to the
-    open mesh (`seen_distance`), in place."""
+    open mesh (`seen_distance`), blended into the solids' value past its rims, in place."""
     from scipy.ndimage import binary_dilation
 
     faces = np.asarray(faces, dtype=np.int64)
@@ -419,14 +426,15 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     near = np.zeros(F.shape, dtype=bool)
     vi = np.clip(np.round((vertices[used] - lo) / voxel).astype(np.int64), 0, np.array(F.shape) - 1)
     near[tuple(vi.T)] = True
-    reach = int(np.ceil(max(band, BAND_BESIDE) * spacing / voxel)) + 1
+    reach = int(np.ceil(max(band, BAND_BLEND) * spacing / voxel)) + 1
     near = binary_dilation(near, np.ones((3, 3, 3), dtype=bool), iterations=reach)
     near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
     g = np.argwhere(near)
     dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing)
-    over = (beside < BAND_BESIDE * spacing) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
-    g = g[over]
-    F[tuple(g.T)] = dist[over]
+    w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
+    over = (w > 0) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
+    g, w = g[over], w[over]
+    F[tuple(g.T)] = w * dist[over] + (1 - w) * F[tuple(g.T)]
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
     vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
     lab[tuple(g.T)] = vsec[v[over]]
@@ -458,7 +466,8 @@ def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
     return project
 
 
-def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float) -> np.ndarray:
+def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float,
+             background: int = 0) -> np.ndarray:
     """(m,) how far (metres) each position ``at`` lies in front of the surface its camera saw: its
     depth toward the camera beyond the nearest seen point of its pixel and the eight around it
     (pixels of one ``spacing``); positive is air the camera looked through, -inf where no camera
@@ -475,13 +484,17 @@ def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spa
     at : (m, 3) float
     spacing : float
         Median point spacing, metres.
+    background : int
+        Pixels: a position that every head sees in its picture with no point within this many
+        pixels is air too (+inf): beside the silhouettes, where no camera saw anything (0 = off).
     """
-    from scipy.ndimage import maximum_filter
+    from scipy.ndimage import binary_dilation, maximum_filter
 
     if head is None:   # parallel heads by their direction, else one perspective camera
         _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
         head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
     out = np.full(len(at), -np.inf)
+    empty = np.full(len(at), background > 0)
     for h in np.unique(head):
         sel = np.flatnonzero(head == h)
         project = _camera(points[sel], view_dir[sel], spacing)
@@ -502,4 +515,9 @@ def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spa
         zk = z[k[ok, 0], k[ok, 1]]
         air[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
         out = np.maximum(out, air)
-    return out
+        if background > 0:
+            bg = ~binary_dilation(seen, np.ones((3, 3), dtype=bool), iterations=background)
+            e = np.zeros(len(at), dtype=bool)
+            e[ok] = bg[k[ok, 0], k[ok, 1]]
+            empty &= e
+    return np.where(empty, np.inf, out)
