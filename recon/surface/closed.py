@@ -263,7 +263,8 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     return out
 
 
-def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8):
+def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
+                  reach: float = np.inf):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -277,6 +278,8 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         Median point spacing, metres: the width of the Gaussian weights.
     k : int
         Nearest mesh vertices averaged.
+    reach : float
+        Queries farther than this (metres) from every vertex are left out (NaN, inf, 0).
 
     Returns
     -------
@@ -301,14 +304,18 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
     vp = vertices[used]
     k = min(k, len(used))
-    d, i = cKDTree(vp).query(at, k)
-    d, i = d.reshape(len(at), k), i.reshape(len(at), k)
-    off = at[:, None, :] - vp[i]
+    tree = cKDTree(vp)
+    dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
+    near = np.flatnonzero(np.isfinite(tree.query(at, 1, distance_upper_bound=reach)[0]))
+    d, i = tree.query(at[near], k)
+    d, i = d.reshape(len(near), k), i.reshape(len(near), k)
+    off = at[near, None, :] - vp[i]
     along = np.einsum("mkj,mkj->mk", off, vn[i])
     w = np.exp(-(d / spacing) ** 2) + 1e-300
-    dist = -(w * along).sum(axis=1) / w.sum(axis=1)
-    beside = np.sqrt(np.maximum(d[:, 0] ** 2 - along[:, 0] ** 2, 0))
-    return dist, beside, used[i[:, 0]]
+    dist[near] = -(w * along).sum(axis=1) / w.sum(axis=1)
+    beside[near] = np.sqrt(np.maximum(d[:, 0] ** 2 - along[:, 0] ** 2, 0))
+    vertex[near] = used[i[:, 0]]
+    return dist, beside, vertex
 
 
 #: Spacings beside the open mesh (past a hole's rim): up to BAND_BESIDE the seen surface's band
@@ -430,9 +437,10 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     near = binary_dilation(near, np.ones((3, 3, 3), dtype=bool), iterations=reach)
     near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
     g = np.argwhere(near)
-    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing)
+    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing,
+                                    reach=np.hypot(band, BAND_BLEND) * spacing)
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
-    over = (w > 0) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
+    over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
     F[tuple(g.T)] = w * dist[over] + (1 - w) * F[tuple(g.T)]
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
