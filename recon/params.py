@@ -529,8 +529,8 @@ class SurfaceParams:
         "help": "proposed-closed: holes are filled at most this beyond the model radius",
         "unit": "widths", "range": (0.0, None)})
     close_band: float = field(default=2.0, metadata={
-        "help": "proposed-closed: grid points over the open mesh up to this outside it (and half "
-                "of it inside) take their signed distance to it: the seen surface as meshed (0 = off)",
+        "help": "proposed-closed: grid points over the open mesh, up to this outside it (half of "
+                "it inside), take their signed distance to it (0 = off)",
         "unit": "spacings", "range": (0.0, None)})
     close_carve: float = field(default=1.0, metadata={
         "help": "proposed-closed: what lies this far in front of the surface a camera saw, along "
