@@ -520,7 +520,7 @@ class SurfaceParams:
         "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     close_voxel: float = field(default=0.008, metadata={
-        "help": "proposed-closed: grid step of the closed surface (recon.surface.complete.closed_surface)",
+        "help": "proposed-closed: grid step of the closed surface (recon.surface.closed.closed_surface)",
         "unit": "m", "range": (0.001, 0.05)})
     close_cell: float = field(default=1.5, metadata={
         "help": "proposed-closed: cell size of the sections' radial height fields",
@@ -528,6 +528,18 @@ class SurfaceParams:
     close_envelope: float = field(default=0.3, metadata={
         "help": "proposed-closed: holes are filled at most this beyond the model radius",
         "unit": "widths", "range": (0.0, None)})
+    close_band: float = field(default=2.0, metadata={
+        "help": "proposed-closed: grid points over the open mesh, up to this outside it (half of "
+                "it inside), take their signed distance to it (0 = off)",
+        "unit": "spacings", "range": (0.0, None)})
+    close_carve: float = field(default=1.0, metadata={
+        "help": "proposed-closed: what lies this far in front of the surface a camera saw, along "
+                "its line of sight, is air and stays out of the closed surface (0 = off)",
+        "unit": "spacings", "range": (0.0, None)})
+    close_background: int = field(default=1, metadata={
+        "help": "proposed-closed: what every head sees with no point within this many pixels (each "
+                "one spacing), beside the silhouettes, is air (0 = off)",
+        "unit": "", "range": (0, None)})
     far_min_points: int = field(default=5, metadata={
         "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
         "range": (3, None)})

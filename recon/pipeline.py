@@ -296,7 +296,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     method : {"proposed", "proposed-closed", "paper", "simple"}
         ``proposed``: clustering refined by the distance distribution and the multi-section rules;
         ``proposed-closed`` (beyond the paper): ``proposed`` with the unseen surface closed
-        (`recon.surface.complete.closed_surface`): watertight, its vertices new (after the input points,
+        (`recon.surface.closed.closed_surface`): watertight, its vertices new (after the input points,
         which it leaves in no face); ``paper``: the same steps with every rule of ours off
         (`recon.params.PAPER`), the paper's method as itself; ``simple``: the paper's baseline,
         T_d threshold only.
@@ -408,14 +408,18 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     faces = keep[faces]
     unmeshed = unmeshed_count(len(raw), faces)
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
-        from .surface.complete import closed_surface
+        from .surface.closed import closed_surface
 
         t0 = time.perf_counter()
         sp = params.surface
+        hd = _check_head(head, len(raw))
+        view = None if vd is None else (np.broadcast_to(vd, p.shape), None if hd is None else hd[keep])
         solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
                   if name in fit.sections and name not in skipped] + list(extra)
         cv, cf, face_section = closed_surface(mesh_points, solids, spacing, sp.close_voxel,
-                                              sp.close_cell, sp.close_envelope)
+                                              sp.close_cell, sp.close_envelope,
+                                              sp.close_band, (vertices, faces, face_section),
+                                              view, sp.close_carve, sp.close_background)
         vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start

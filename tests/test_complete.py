@@ -1,4 +1,4 @@
-"""Completion beyond the paper (recon.surface.complete): hands and feet meshed, holes filled, a closed surface."""
+"""Completion beyond the paper (recon.surface.complete, recon.surface.closed): hands and feet meshed, holes filled, a closed surface."""
 
 import warnings
 
@@ -8,7 +8,7 @@ import trimesh
 
 from bodyscan.benchmarks.metrics import is_watertight
 from bodyscan.recon import ReconParams, reconstruct
-from bodyscan.recon.surface.complete import marching_tetrahedra, radial_field
+from bodyscan.recon.surface.closed import marching_tetrahedra, radial_field, seen_air, seen_distance
 from bodyscan.recon.model import SECTIONS, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
@@ -120,6 +120,51 @@ def test_marching_tetrahedra_closes_a_sphere():
     assert np.abs(np.linalg.norm(v - 0.115, axis=1) - 0.08).max() < 0.002
 
 
+def test_seen_distance_is_the_signed_distance_to_a_sphere_and_stops_at_a_hole():
+    """An open sphere mesh of radius 10 cm (its cap z > 6 cm removed): the signed distance along
+    its normals within 0.5 mm of the analytic one over the mesh, and `beside` past the rim."""
+    m = trimesh.creation.icosphere(subdivisions=4, radius=0.1)
+    keep = m.triangles_center[:, 2] < 0.06
+    v, f = m.vertices, m.faces[keep]
+    spacing = float(m.edges_unique_length.mean())
+    rng = np.random.default_rng(0)
+    u = rng.normal(size=(400, 3))
+    u /= np.linalg.norm(u, axis=1, keepdims=True)
+    u = u[u[:, 2] < 0.4]
+    r = rng.uniform(0.085, 0.115, len(u))
+    dist, beside, _ = seen_distance(v, f, u * r[:, None], spacing)
+    assert np.abs(dist - (0.1 - r)).max() < 0.0005 and beside.max() < spacing
+    _, beside, _ = seen_distance(v, f, np.array([[0, 0, 0.1], [0, 0, 0.0995]]), spacing)
+    assert beside.min() > 0.03    # over the hole: beside the mesh, by the hole's radius
+
+
+@pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
+def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
+    """A wall y = 0 with a 3 cm hole seen from -y (parallel, or from a camera 2 m away): a point in
+    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown
+    (over the hole, air when the silhouettes count)."""
+    g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
+    g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
+    pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
+    if camera is None:
+        vd = np.tile([0.0, -1.0, 0.0], (len(pts), 1))
+    else:
+        vd = np.asarray(camera) - pts
+        vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    at = np.array([[0.02, -0.03, 0.01], [0.02, 0.03, 0.01], [0.5, -0.03, 0.0], [-0.05, -0.01, -0.05]])
+    air = seen_air(pts, vd, None, at, 0.005)
+    if camera is None:
+        expect = 0.03
+    else:   # the ray from the camera through at[0] meets the wall at t = c_y / (c_y - x_y)
+        c = np.asarray(camera)
+        expect = (c[1] / (c[1] - at[0, 1]) - 1) * np.linalg.norm(at[0] - c)
+    assert abs(air[0] - expect) < 0.002 and air[1] < -0.025 and (air[2:] == -np.inf).all()
+    # with the silhouettes: the hole's middle, two pixels from any point, is air; beside the
+    # picture, still unknown
+    air = seen_air(pts, vd, None, at, 0.005, background=1)
+    assert abs(air[0] - expect) < 0.002 and air[2] == -np.inf and air[3] == np.inf
+
+
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
@@ -140,9 +185,29 @@ def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
     assert m.area_faces[air].sum() < 0.06 * m.area
 
 
-@pytest.mark.xfail(strict=True, reason="issue 15, open: 4.2 % of the closed surface's area stands more "
-                   "than 5 mm outside (max 4 cm): the hand's points clustered into the waist fatten its "
-                   "solid, the crown's last rows reach 1.6 cm past the head")
+def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
+    """The closed surface is as precise as the data where the scanner saw: 99 % of the true
+    surface within 4 mm of a scan point lies within 2 mm of it (the height fields alone: 96.9 %,
+    their 99th percentile 5 mm)."""
+    P, L, vd, fit, shapes = with_hand_and_foot
+    from scipy.spatial import cKDTree
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "proposed-closed", view_dir=vd, fit=fit)
+    m = trimesh.Trimesh(rec.vertices, rec.faces, process=False)
+    truth = np.concatenate([s.surface_points(64, 32) for s in fit.sections.values()])
+    truth = truth[outside(shapes, truth) > -1e-4]
+    seen = truth[cKDTree(P).query(truth)[0] < 0.004]
+    seen = seen[np.random.default_rng(0).choice(len(seen), 1000, replace=False)]
+    _, dist, _ = trimesh.proximity.closest_point(m, seen)
+    assert np.mean(dist < 0.002) > 0.99
+
+
+@pytest.mark.xfail(strict=True, reason="issue 15, open: 2.4 % of the closed surface's area stands more "
+                   "than 5 mm outside (max 3.6 cm; 3.8 % with close_band, close_carve, close_background "
+                   "off): 0.7 % on the waist, whose solid the hand's points clustered into it fatten, the "
+                   "crown's last rows past the head")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():

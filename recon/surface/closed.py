@@ -1,0 +1,531 @@
+"""The closed surface beyond the paper (the method ``proposed-closed``).
+
+`closed_surface`: each section's and far part's points (`recon.surface.complete.far_charts`), in
+its chart's cylindrical coordinates, give a radial height field r(theta, h) whose holes (what the
+scanner did not see) are filled by a discrete Laplace equation within the model's envelope
+(`radial_field`); each field bounds a solid, the solids are united (a maximum of their signed
+values on a grid) and the union's surface is extracted by marching tetrahedra: one closed,
+consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
+holds another section's points, so no surface spans the air between two sections.
+
+The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
+same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
+out as the open mesh has it (blended into the solids past its rims); and whatever lies in front of
+a surface a camera saw, along its line of sight, or beside the silhouettes of every camera, is air
+(`seen_air`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+#: The six tetrahedra of a cube (corner k at offset (k & 1, k >> 1 & 1, k >> 2 & 1)), all around
+#: the diagonal 0-7 (Kuhn): neighbouring cubes split their shared faces alike, so the tetrahedra
+#: tile the grid and marching them gives a closed manifold surface.
+_TETS = np.array([[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 4, 6, 7]])
+
+
+def marching_tetrahedra(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
+    """The surface ``values = 0`` of a grid, closed and consistently wound outward.
+
+    Parameters
+    ----------
+    values : (nx, ny, nz) float
+        Positive inside; the grid's border must be outside (negative).
+    origin : (3,) float
+        Position of ``values[0, 0, 0]``, metres.
+    step : float
+        Grid spacing, metres.
+    labels : (nx, ny, nz) int, optional
+        A label per grid point; each face takes the label of an inside corner of its tetrahedron.
+
+    Returns
+    -------
+    vertices : (v, 3) float
+    faces : (f, 3) int
+        Outward winding (normals toward decreasing ``values``).
+    face_label : (f,) int
+        Per face (zeros without ``labels``).
+    """
+    v = np.where(values == 0, 1e-12, values).astype(np.float64)
+    nx, ny, nz = v.shape
+    inside = v > 0
+    corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])
+    flat = v.ravel()
+    ins = inside.ravel()
+    off = np.ravel_multi_index(corner.T, v.shape)
+    cnt = sum(inside[i:nx - 1 + i, j:ny - 1 + j, k:nz - 1 + k].astype(np.int8) for i, j, k in corner)
+    cube = np.flatnonzero((cnt > 0) & (cnt < 8))             # cubes the surface crosses
+    base = np.ravel_multi_index(np.unravel_index(cube, (nx - 1, ny - 1, nz - 1)), v.shape)
+    tet = (base[:, None, None] + off[_TETS][None]).reshape(-1, 4)
+    s = ins[tet]
+    n_in = s.sum(axis=1)
+    tet, s, n_in = tet[(n_in > 0) & (n_in < 4)], s[(n_in > 0) & (n_in < 4)], n_in[(n_in > 0) & (n_in < 4)]
+    # order each tetrahedron's corners: inside ones first
+    order = np.argsort(~s, axis=1, kind="stable")
+    t = np.take_along_axis(tet, order, axis=1)
+    tris = []      # (m, 3, 2) corner pairs of each triangle's three edge points, and the tet row
+    rows = []
+    one = np.flatnonzero(n_in == 1)        # a | b c d
+    tris.append(np.stack([t[one][:, [0, 1]], t[one][:, [0, 2]], t[one][:, [0, 3]]], axis=1))
+    rows.append(one)
+    three = np.flatnonzero(n_in == 3)      # a b c | d
+    tris.append(np.stack([t[three][:, [0, 3]], t[three][:, [1, 3]], t[three][:, [2, 3]]], axis=1))
+    rows.append(three)
+    two = np.flatnonzero(n_in == 2)        # a b | c d: the quad ac ad bd bc
+    q = t[two]
+    tris.append(np.stack([q[:, [0, 2]], q[:, [0, 3]], q[:, [1, 3]]], axis=1))
+    tris.append(np.stack([q[:, [0, 2]], q[:, [1, 3]], q[:, [1, 2]]], axis=1))
+    rows += [two, two]
+    pairs = np.concatenate(tris)                           # (m, 3, 2): inside corner, outside corner
+    row = np.concatenate(rows)
+    key = pairs[..., 0].astype(np.int64) * flat.size + pairs[..., 1]
+    uniq, inv = np.unique(key.ravel(), return_inverse=True)
+    a, b = uniq // flat.size, uniq % flat.size
+    w = flat[a] / (flat[a] - flat[b])                      # a inside (> 0), b outside (< 0)
+    w = np.clip(w, 1e-3, 1 - 1e-3)
+    pa = np.column_stack(np.unravel_index(a, v.shape)).astype(np.float64)
+    pb = np.column_stack(np.unravel_index(b, v.shape)).astype(np.float64)
+    vertices = origin + step * (pa + w[:, None] * (pb - pa))
+    faces = inv.reshape(-1, 3)
+    # outward: from the tetrahedron's inside corners toward its outside ones
+    tt, ss = tet[row], s[row]
+    cp = np.stack(np.unravel_index(tt, v.shape), axis=-1).astype(np.float64)
+    k_in = ss.sum(axis=1, keepdims=True)
+    out_dir = ((cp * ~ss[..., None]).sum(axis=1) / (4 - k_in) - (cp * ss[..., None]).sum(axis=1) / k_in)
+    p = vertices[faces]
+    nrm = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    flip = np.einsum("ij,ij->i", nrm, out_dir) < 0
+    faces[flip] = faces[flip][:, ::-1]
+    if labels is None:
+        face_label = np.zeros(len(faces), dtype=np.int64)
+    else:
+        face_label = labels.ravel()[pairs[:, 0, 0]]
+    return vertices, faces, face_label
+
+
+#: A row's gap in the seen surface is a hole to fill when it spans at most this fraction of the turn.
+GAP_TURN = 0.5
+
+
+def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: float = np.inf,
+                 thin=(-np.inf, np.inf)):
+    """A section's surface as a radial height field ``rho = R(theta, h)`` on a grid, its holes filled.
+
+    The points' distances from the axis are averaged per (theta, h) cell. Cells the points leave
+    empty are filled where they are holes of the seen surface: between seen cells of the same
+    theta column (the column's h extent), or in a row's gap narrower than half the turn. The fill
+    interpolates the seen radii harmonically (the smoothest surface through the hole's rim: a
+    discrete Laplace equation over the holes, periodic in theta), held within ``envelope`` of the
+    model's radius.
+
+    Parameters
+    ----------
+    local : (m, 3) float
+        The section's points in its frame (x, y across, h along the axis), metres.
+    cell : float
+        Cell size along h and around the mean radius, metres.
+    model_radius : callable, optional
+        ``theta -> radius`` of the model (a hole with no seen rim takes it); default: the points'
+        mean distance from the axis.
+    envelope : float
+        Largest fill beyond the model radius, metres.
+    thin : (2,) float
+        Rows outside this range of h (metres) fill no cell beyond the smallest seen radius of the
+        row: parts of unknown shape (a far part: a hand, a foot) have their unseen side taken as
+        thin as their thinnest seen side.
+
+    Returns
+    -------
+    R : (n_theta, n_h) float
+        Radius per cell (NaN outside the surface).
+    h0 : float
+        h of the first row's centre; rows are ``cell`` apart along h, columns ``2*pi/n_theta``.
+    """
+    from scipy.sparse import coo_matrix, identity
+    from scipy.sparse.linalg import spsolve
+
+    rho = np.hypot(local[:, 0], local[:, 1])
+    theta = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi)
+    h = local[:, 2]
+    n_t = int(max(8, np.ceil(2 * np.pi * max(float(np.median(rho)), cell) / cell)))
+    h0 = float(h.min())
+    n_h = int(np.floor((float(h.max()) - h0) / cell)) + 1
+    ti = np.minimum((theta / (2 * np.pi) * n_t).astype(np.int64), n_t - 1)
+    hi = np.minimum(((h - h0) / cell).astype(np.int64), n_h - 1)
+    flat = ti * n_h + hi
+    cnt = np.bincount(flat, minlength=n_t * n_h).reshape(n_t, n_h)
+    tot = np.bincount(flat, weights=rho, minlength=n_t * n_h).reshape(n_t, n_h)
+    seen = cnt > 0
+    R = np.where(seen, tot / np.maximum(cnt, 1), np.nan)
+    rows = np.arange(n_h)
+    first = np.where(seen.any(axis=1), np.argmax(seen, axis=1), n_h)
+    last = np.where(seen.any(axis=1), n_h - 1 - np.argmax(seen[:, ::-1], axis=1), -1)
+    fill = (rows[None, :] >= first[:, None]) & (rows[None, :] <= last[:, None])
+    # a row's gaps narrower than half the turn: distance to the nearest seen cell on each side
+    idx = np.arange(3 * n_t)[:, None]
+    tiled = np.tile(seen, (3, 1))
+    left = np.maximum.accumulate(np.where(tiled, idx, -10 ** 9), axis=0)[n_t:2 * n_t]
+    right = np.minimum.accumulate(np.where(tiled, idx, 10 ** 9)[::-1], axis=0)[::-1][n_t:2 * n_t]
+    fill |= (right - left) <= n_t * GAP_TURN
+    fill &= ~seen
+    valid = seen | fill
+    if fill.any():
+        if model_radius is None:
+            model = np.full(n_t, float(np.nanmean(R)))
+        else:
+            model = np.asarray(model_radius((np.arange(n_t) + 0.5) * 2 * np.pi / n_t), dtype=float)
+        # the Laplace equation over the valid cells (theta periodic), seen cells fixed
+        id_ = np.full((n_t, n_h), -1)
+        unk = np.flatnonzero(fill.ravel())
+        id_.ravel()[unk] = np.arange(len(unk))
+        t_u, h_u = np.divmod(unk, n_h)
+        rows_, cols_, rhs = [], [], np.zeros(len(unk))
+        deg = np.zeros(len(unk))
+        for dt, dh in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            tn, hn = (t_u + dt) % n_t, h_u + dh
+            ok = (hn >= 0) & (hn < n_h)
+            tn, hn, k = tn[ok], hn[ok], np.flatnonzero(ok)
+            vn = valid[tn, hn]
+            tn, hn, k = tn[vn], hn[vn], k[vn]
+            deg[k] += 1
+            other = id_[tn, hn]
+            free = other >= 0
+            rows_.append(k[free])
+            cols_.append(other[free])
+            np.add.at(rhs, k[~free], R[tn[~free], hn[~free]])
+        eps = 1e-3
+        A = coo_matrix((-np.ones(sum(len(r) for r in rows_)), (np.concatenate(rows_), np.concatenate(cols_))),
+                       shape=(len(unk), len(unk))).tocsr()
+        A = A + coo_matrix((deg + eps, (np.arange(len(unk)), np.arange(len(unk))))).tocsr()
+        x = spsolve(A.tocsc(), rhs + eps * model[t_u])
+        hc = h0 + (h_u + 0.5) * cell
+        lean = (hc < thin[0]) | (hc > thin[1])
+        if lean.any():   # no more than the row's thinnest seen radius (a flat hand seen on its back)
+            low = np.min(np.where(seen, R, np.inf), axis=0)[h_u]
+            x = np.where(lean & np.isfinite(low), np.minimum(x, low), x)
+        R[t_u, h_u] = np.minimum(x, model[t_u] + envelope)
+    return R, h0
+
+
+def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None) -> np.ndarray:
+    """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
+    ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
+    (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
+    past its last cells (and not past ``h1``, the last point's h, when given)."""
+    from scipy.ndimage import distance_transform_edt
+
+    n_t, n_h = R.shape
+    valid = np.isfinite(R)
+    pad = np.zeros((3 * n_t, n_h + 2), dtype=bool)
+    pad[:, 1:-1] = np.tile(valid, (3, 1))
+    inner = distance_transform_edt(pad)
+    outer, (it, ih) = distance_transform_edt(~pad, return_indices=True)
+    S = np.where(pad, inner - 0.5, 0.5 - outer)[n_t:2 * n_t, 1:-1] * cell
+    Rn = np.tile(np.where(valid, R, 0.0), (3, 1))
+    Rn = np.pad(Rn, ((0, 0), (1, 1)))[it, ih][n_t:2 * n_t, 1:-1]   # nearest valid radius outside
+    rho = np.hypot(local[:, 0], local[:, 1])
+    tf = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi) / (2 * np.pi) * n_t - 0.5
+    hf = np.clip((local[:, 2] - h0) / cell - 0.5, -1.0, n_h)
+    t0 = np.floor(tf).astype(np.int64)
+    a = tf - t0
+    hc = np.clip(hf, 0, n_h - 1)
+    r0 = np.minimum(np.floor(hc).astype(np.int64), max(n_h - 2, 0))
+    b = np.clip(hc - r0, 0, 1)
+    r1 = np.minimum(r0 + 1, n_h - 1)
+    ta, tb = t0 % n_t, (t0 + 1) % n_t
+
+    def bil(G):
+        return ((1 - a) * ((1 - b) * G[ta, r0] + b * G[ta, r1]) + a * ((1 - b) * G[tb, r0] + b * G[tb, r1]))
+
+    s = bil(S) - np.maximum(-hf, 0) * cell - np.maximum(hf - (n_h - 1), 0) * cell
+    if h1 is not None:   # not past the last point's h
+        s = np.minimum(s, h1 - local[:, 2])
+    return np.minimum(bil(Rn) - rho, s)
+
+
+def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
+    """`field_value` of one solid on the grid box ``i0:i1`` (origin ``lo``, step ``voxel``):
+    computed on every second grid point, then on every grid point only near the solid's surface
+    (within 4 steps; elsewhere only its sign matters, and the coarse value has it)."""
+    from scipy.ndimage import binary_dilation
+
+    D = tuple(int(d) for d in i1 - i0)
+    gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
+    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1).reshape(tuple((d + 1) // 2 for d in D))
+    near = binary_dilation(np.abs(vc) < 4 * voxel)
+    up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
+    out = np.ascontiguousarray(up(vc))
+    fine = np.flatnonzero(up(near))
+    g = np.column_stack(np.unravel_index(fine, D)) + i0
+    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1)
+    return out
+
+
+def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
+                  reach: float = np.inf):
+    """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (f, 3) int
+        The open mesh, wound outward.
+    at : (m, 3) float
+        Query positions, metres.
+    spacing : float
+        Median point spacing, metres: the width of the Gaussian weights.
+    k : int
+        Nearest mesh vertices averaged.
+    reach : float
+        Queries farther than this (metres) from every vertex are left out (NaN, inf, 0).
+
+    Returns
+    -------
+    dist : (m,) float
+        Positive inside: the Gaussian-weighted mean of the query's offsets along the ``k`` nearest
+        vertices' normals (a smooth signed distance through the vertices' tangent planes).
+    beside : (m,) float
+        The query's offset across the nearest vertex's normal, metres: small over the seen
+        surface, growing past the rim of a hole.
+    vertex : (m,) int
+        The nearest vertex (index into ``vertices``).
+    """
+    from scipy.spatial import cKDTree
+
+    faces = np.asarray(faces, dtype=np.int64)
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
+    vn = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    used = np.unique(faces)
+    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
+    vp = vertices[used]
+    k = min(k, len(used))
+    tree = cKDTree(vp)
+    dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
+    near = np.flatnonzero(np.isfinite(tree.query(at, 1, distance_upper_bound=reach)[0]))
+    d, i = tree.query(at[near], k)
+    d, i = d.reshape(len(near), k), i.reshape(len(near), k)
+    off = at[near, None, :] - vp[i]
+    along = np.einsum("mkj,mkj->mk", off, vn[i])
+    w = np.exp(-(d / spacing) ** 2) + 1e-300
+    dist[near] = -(w * along).sum(axis=1) / w.sum(axis=1)
+    beside[near] = np.sqrt(np.maximum(d[:, 0] ** 2 - along[:, 0] ** 2, 0))
+    vertex[near] = used[i[:, 0]]
+    return dist, beside, vertex
+
+
+#: Spacings beside the open mesh (past a hole's rim): up to BAND_BESIDE the seen surface's band
+#: takes the signed distance to it, from there to BAND_BLEND a blend of it and the solids' value
+#: (so that the fill meets the rim without a step).
+BAND_BESIDE, BAND_BLEND = 1.0, 2.0
+
+
+def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
+                   cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
+                   view=None, carve: float = 1.0, background: int = 1):
+    """A closed, manifold surface: the union of the sections' solids, each the inside of its
+    radial height field with the holes filled (`radial_field`), by marching tetrahedra.
+
+    Two sections meet where their solids overlap (their seams share points), and nothing joins
+    them across the air: each solid holds only its own section's surface and its fill stays
+    within ``envelope`` of its model.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    solids : list of (int, (k,) int, SectionShape[, dict, (k',) int])
+        Section index, point indices and chart of each solid: the sections, and the far parts
+        (`far_charts`, whose solids take their own points only).
+    spacing : float
+        Median point spacing, metres.
+    voxel : float
+        Grid step of the implicit surface, metres.
+    cell : float
+        Spacings: cell size of the radial height fields.
+    envelope : float
+        Fill at most this times the section's width beyond its model radius.
+    band : float
+        Spacings: grid points over the open mesh, from this far outside it to half of it inside,
+        take their signed distance to it (`seen_distance`; 0 = off): the seen surface comes out
+        where the open mesh has it, the solids only close what it leaves open.
+    seen : (vertices (n', 3), faces (f', 3), face_section (f',)), optional
+        The open mesh (wound outward) and its faces' sections.
+    view : (view_dir (n, 3), head (n,) or None), optional
+        How ``points`` were seen (`seen_air`).
+    carve : float
+        Spacings: grid points farther than this in front of the surface a camera saw are outside
+        (0 = off).
+    background : int
+        Pixels (of one spacing): grid points that every head sees with no point within this many
+        pixels, beside the silhouettes, are outside too (0 = off; `seen_air`).
+
+    Returns
+    -------
+    vertices : (v, 3) float
+    faces : (f, 3) int
+        Outward winding; every edge in exactly two faces.
+    face_section : (f,) int8
+    """
+    cell = max(cell * spacing, voxel)
+    parts = []
+    lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
+    for job in solids:
+        j, idx, shape = job[:3]
+        idx = job[4] if len(job) > 4 else idx      # a far part: its own points
+        if len(idx) < 10:
+            continue
+        local = shape.local(points[idx])
+        # a far part's chart is its points' own ellipse: its fill stays within it
+        part = len(job) > 3
+        thin = (np.inf, -np.inf) if part else (-np.inf, np.inf)
+        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin)
+        h1 = float(local[:, 2].max())
+        reach = float(np.nanmax(R)) + cell
+        corners = np.array([[x, y, z] for x in (-reach, reach) for y in (-reach, reach)
+                            for z in (h0 - cell, h0 + (R.shape[1] + 1) * cell)])
+        world = corners @ shape.frame + shape.start
+        parts.append((j, shape, R, h0, h1, world.min(axis=0), world.max(axis=0)))
+        lo, hi = np.minimum(lo, world.min(axis=0)), np.maximum(hi, world.max(axis=0))
+    if not parts:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
+    lo = np.maximum(lo, points.min(axis=0) - 0.05) - 2 * voxel
+    hi = np.minimum(hi, points.max(axis=0) + 0.05) + 2 * voxel
+    shape_ = tuple(np.ceil((hi - lo) / voxel).astype(int) + 1)
+    F = np.full(shape_, -voxel)
+    lab = np.zeros(shape_, dtype=np.int8)
+    for j, shape, R, h0, h1, a, b in parts:
+        i0 = np.clip(np.floor((a - lo) / voxel).astype(int), 1, None)
+        i1 = np.minimum(np.ceil((b - lo) / voxel).astype(int) + 1, np.array(shape_) - 1)
+        if (i1 <= i0).any():
+            continue
+        val = _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1)
+        box = tuple(slice(a_, b_) for a_, b_ in zip(i0, i1))
+        better = val > F[box]
+        F[box] = np.where(better, val, F[box])
+        lab[box] = np.where(better, j, lab[box])
+    # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
+    if seen is not None and band > 0:
+        _seen_band(F, lab, lo, voxel, spacing, band, *seen)
+    if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
+        g = np.argwhere(F > -voxel)
+        air = seen_air(points, view[0], view[1], lo + voxel * g, spacing, background)
+        cut = np.where(np.isposinf(air), -spacing, carve * spacing - air if carve > 0 else np.inf)
+        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
+    F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
+    F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
+    vertices, faces, face_label = marching_tetrahedra(F, lo, voxel, lab)
+    return vertices, faces, face_label.astype(np.int8)
+
+
+def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
+    """Overwrite ``F`` (and ``lab``) in the seen surface's band with the signed distance to the
+    open mesh (`seen_distance`), blended into the solids' value past its rims, in place."""
+    from scipy.ndimage import binary_dilation
+
+    faces = np.asarray(faces, dtype=np.int64)
+    if len(faces) == 0:
+        return
+    used = np.unique(faces)
+    near = np.zeros(F.shape, dtype=bool)
+    vi = np.clip(np.round((vertices[used] - lo) / voxel).astype(np.int64), 0, np.array(F.shape) - 1)
+    near[tuple(vi.T)] = True
+    reach = int(np.ceil(max(band, BAND_BLEND) * spacing / voxel)) + 1
+    near = binary_dilation(near, np.ones((3, 3, 3), dtype=bool), iterations=reach)
+    near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
+    g = np.argwhere(near)
+    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing,
+                                    reach=np.hypot(band, BAND_BLEND) * spacing)
+    w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
+    over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
+    g, w = g[over], w[over]
+    F[tuple(g.T)] = w * dist[over] + (1 - w) * F[tuple(g.T)]
+    vsec = np.zeros(len(vertices), dtype=lab.dtype)
+    vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
+    lab[tuple(g.T)] = vsec[v[over]]
+
+
+def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
+    """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
+    at the body and depth increasing toward the camera, or None when its rays neither are parallel
+    nor meet in a centre (within ``spacing``)."""
+    a = view_dir.mean(axis=0)
+    a /= np.linalg.norm(a)
+    e1 = np.cross(a, [0.0, 0.0, 1.0] if abs(a[2]) < 0.9 else [1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(a, e1)
+    if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
+        return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
+    # perspective: the centre nearest to every ray (p + t v)
+    P = np.eye(3)[None] - view_dir[:, :, None] * view_dir[:, None, :]
+    c = np.linalg.lstsq(P.sum(axis=0), np.einsum("nij,nj->i", P, points), rcond=None)[0]
+    off = c - points
+    if np.sqrt(max(float(np.mean(np.einsum("ni,nij,nj->n", off, P, off))), 0.0)) > spacing:
+        return None
+    dist = float(np.linalg.norm(off, axis=1).mean())
+
+    def project(x):
+        u = c - x
+        ua = u @ a
+        return dist * np.column_stack([u @ e1, u @ e2]) / ua[:, None], -np.linalg.norm(u, axis=1)
+    return project
+
+
+def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float,
+             background: int = 0) -> np.ndarray:
+    """(m,) how far (metres) each position ``at`` lies in front of the surface its camera saw: its
+    depth toward the camera beyond the nearest seen point of its pixel and the eight around it
+    (pixels of one ``spacing``); positive is air the camera looked through, -inf where no camera
+    saw a point along that line (unknown).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    view_dir : (n, 3) float
+        Unit directions toward the camera that saw each point.
+    head : (n,) int or None
+        The head of each point (None: the points grouped by their view direction when fewer than
+        16, else all from one camera).
+    at : (m, 3) float
+    spacing : float
+        Median point spacing, metres.
+    background : int
+        Pixels: a position that every head sees in its picture with no point within this many
+        pixels is air too (+inf): beside the silhouettes, where no camera saw anything (0 = off).
+    """
+    from scipy.ndimage import binary_dilation, maximum_filter
+
+    if head is None:   # parallel heads by their direction, else one perspective camera
+        _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
+        head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
+    out = np.full(len(at), -np.inf)
+    empty = np.full(len(at), background > 0)
+    for h in np.unique(head):
+        sel = np.flatnonzero(head == h)
+        project = _camera(points[sel], view_dir[sel], spacing)
+        if project is None or len(sel) < 10:
+            continue
+        uv, depth = project(points[sel])
+        o = uv.min(axis=0) - spacing
+        ij = np.floor((uv - o) / spacing).astype(np.int64)
+        shape = tuple(ij.max(axis=0) + 2)
+        z = np.full(shape, -np.inf)
+        np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
+        seen = np.isfinite(z)
+        z = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
+        xy, dx = project(at)
+        k = np.floor((xy - o) / spacing).astype(np.int64)
+        ok = ((k >= 0) & (k < np.array(shape))).all(axis=1)
+        air = np.full(len(at), -np.inf)
+        zk = z[k[ok, 0], k[ok, 1]]
+        air[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
+        out = np.maximum(out, air)
+        if background > 0:
+            bg = ~binary_dilation(seen, np.ones((3, 3), dtype=bool), iterations=background)
+            e = np.zeros(len(at), dtype=bool)
+            e[ok] = bg[k[ok, 0], k[ok, 1]]
+            empty &= e
+    return np.where(empty, np.inf, out)
