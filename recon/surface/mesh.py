@@ -402,7 +402,7 @@ def _trim(points: np.ndarray, faces: np.ndarray, view_dir, params: SurfaceParams
 
 
 def view_surface(points: np.ndarray, view_dir: np.ndarray, params: SurfaceParams = SurfaceParams(),
-                 spacing: float | None = None) -> np.ndarray:
+                 spacing: float | None = None, shape: SectionShape | None = None) -> np.ndarray:
     """Triangulate points as the range images their cameras took: per camera, by Delaunay across
     its viewing direction.
 
@@ -423,6 +423,10 @@ def view_surface(points: np.ndarray, view_dir: np.ndarray, params: SurfaceParams
     params : SurfaceParams
     spacing : float, optional
         Median point spacing, metres (default: measured on ``points``).
+    shape : SectionShape, optional
+        A chart around the points (`section_surface`): its faces that join the two cameras' points
+        and lie along no inner edge of their images close the rims between the images (the sides
+        of a foot, whose length runs along the view; the edge of a hand).
 
     Returns
     -------
@@ -448,9 +452,17 @@ def view_surface(points: np.ndarray, view_dir: np.ndarray, params: SurfaceParams
         simp = _delaunay(points[sel] @ np.column_stack([e1, np.cross(d, e1)]))
         if simp is not None:
             parts.append(sel[simp])
-    if not parts:
-        return np.zeros((0, 3), dtype=np.int64)
-    return _trim(points, np.concatenate(parts).astype(np.int64), view_dir, params, spacing)
+    faces = _trim(points, np.concatenate(parts).astype(np.int64), view_dir, params, spacing) if parts \
+        else np.zeros((0, 3), dtype=np.int64)
+    if shape is None or side.all() or not side.any():
+        return faces
+    # the rims: the chart's faces joining two cameras' points, along no inner edge of the images
+    rim = section_surface(points, shape, params, spacing, view_dir)
+    rim = rim[side[rim].any(axis=1) & ~side[rim].all(axis=1)]
+    keys = edge_keys(np.concatenate([faces, rim]))
+    u, c = np.unique(keys[:len(faces)], return_counts=True)
+    rim = rim[~np.isin(keys[len(faces):], u[c >= 2]).any(axis=1)]
+    return np.concatenate([faces, rim])
 
 
 def _end_loops(faces: np.ndarray, h: np.ndarray, length: float):
@@ -898,7 +910,7 @@ def _chart_faces(points: np.ndarray, idx: np.ndarray, job, params: SurfaceParams
     points (the rest are other charts')."""
     vd = None if view_dir is None else (view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
     if len(job) > 4 and params.far_view and vd is not None:   # a far part: its range images
-        f = idx[view_surface(points[idx], vd, params, spacing)]
+        f = idx[view_surface(points[idx], vd, params, spacing, job[2])]
     else:
         f = idx[section_surface(points[idx], job[2], params, spacing, vd)]
     if len(job) > 4:
