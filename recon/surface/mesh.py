@@ -28,6 +28,10 @@ tangent planes at their vertices (covers over concave holes, ``concave_height``;
 holes in convex surface, inside the body, stay as in the paper), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
+
+The parts no section's chart fits (hands, feet: `recon.surface.complete.far_charts`) are
+triangulated as the range images their cameras took (`view_surface`: Delaunay across each
+camera's view, the rims between the images closed by their own chart's faces).
 """
 
 from __future__ import annotations
