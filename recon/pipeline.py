@@ -367,13 +367,18 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         from .clustering.cluster import section_widths, simple_clustering
 
         far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
+        sp = params.surface
+        hands = spacing <= sp.far_hand_spacing   # a scan fine enough for a hand's fingers
+        if sp.far_charts and steps != "simple" and sp.far_past_joint >= 0:  # hands and feet
+            from .surface.complete import past_joints
+
+            far |= past_joints(p, member, fit, sp.far_past_joint, hands)
         meshed = member & ~far[:, None]
-        if params.surface.far_charts and steps != "simple":  # ... or on charts of their own
+        if sp.far_charts and steps != "simple":  # ... or on charts of their own
             from .surface.complete import far_charts
 
-            sp = params.surface
             extra = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link,
-                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
+                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree, hands)
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)

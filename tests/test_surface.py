@@ -437,3 +437,77 @@ def test_cover_max_edge_leaves_large_holes_open_and_covers_small_ones():
     for f in (paper, ours):                                             # the small hole: covered
         c = P[f].mean(axis=1)
         assert ((np.abs(c[:, 2] - 0.3) < 0.006) & (c[:, 0] > 0.045)).any()
+
+
+def zbuffer(P, N, step):
+    """The points of ``P`` (k, 3) (outward normals ``N``) that parallel front (-y) and rear (+y)
+    cameras see on a ``step`` grid in x, z, and their viewing directions."""
+    ix, iz = np.floor(P[:, 0] / step).astype(int), np.floor(P[:, 2] / step).astype(int)
+    key = (ix - ix.min()) * 100000 + (iz - iz.min())
+    keep, vd = np.zeros(len(P), bool), np.zeros_like(P)
+    for sign in (1, -1):
+        o = np.lexsort((sign * P[:, 1], key))
+        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
+        first = first[N[first, 1] * -sign > 0.05]
+        keep[first] = True
+        vd[first] = (0, -sign, 0)
+    return P[keep], vd[keep]
+
+
+def test_view_surface_meshes_a_flat_hand_on_its_surface():
+    # a flat ellipsoid (a hand, 9 x 3 x 18 cm) seen front and rear on a 5 mm grid: each camera's
+    # range image is triangulated across its view, so every face lies on the surface (a face
+    # joining the front to the back would pass 1.5 cm inside) and almost every point is in a face
+    a = np.array([0.045, 0.015, 0.09])
+    u, v = np.meshgrid(np.linspace(0, np.pi, 300), np.linspace(0, 2 * np.pi, 600))
+    d = np.column_stack([np.sin(u.ravel()) * np.cos(v.ravel()), np.sin(u.ravel()) * np.sin(v.ravel()),
+                         np.cos(u.ravel())])
+    P, N = d * a, d / a
+    P, vd = zbuffer(P, N / np.linalg.norm(N, axis=1, keepdims=True), 0.005)
+    f = S.view_surface(P, vd, SurfaceParams(), 0.005)
+    assert len(np.unique(f)) > 0.95 * len(P)
+    c = P[f].mean(axis=1)
+    g = ((c / a) ** 2).sum(axis=1)                 # 1 on the surface
+    depth = (1 - g) / np.linalg.norm(2 * c / a ** 2, axis=1)
+    assert depth.max() < 0.0015
+    assert (vd[f][:, :, 1] == vd[f][:, :1, 1]).all()                 # one camera per face
+    area = S.face_areas(P, f).sum()
+    assert area > 0.85 * 4 * np.pi * (((a[0] * a[1]) ** 1.6 + (a[0] * a[2]) ** 1.6 + (a[1] * a[2]) ** 1.6) / 3) ** (1 / 1.6)
+
+
+def test_view_surface_does_not_join_a_depth_step():
+    # two plates 10 cm apart in depth, the front one hiding half of the rear one: next to each other
+    # in the camera's image, 10 cm apart in 3D. Both are meshed, nothing joins them
+    x, z = np.meshgrid(np.arange(0, 0.1, 0.01), np.arange(0, 0.1, 0.01))
+    front = np.column_stack([x.ravel(), np.zeros(x.size), z.ravel()])
+    rear = np.column_stack([x.ravel() + 0.1, np.full(x.size, 0.1), z.ravel()])
+    P = np.concatenate([front, rear])
+    f = S.view_surface(P, np.array([0, -1.0, 0]), SurfaceParams(), 0.01)
+    which = (f >= len(front)).sum(axis=1)
+    assert ((which == 0) | (which == 3)).all()
+    assert len(np.unique(f)) == len(P)
+
+
+def test_view_surface_closes_the_rim_between_the_cameras_images():
+    # an ellipsoid (5 x 3 x 18 cm) seen front and rear on a 5 mm grid: the two range images leave
+    # the rim between their silhouettes open (a fifth of the area); the faces of a column chart
+    # around the points that join the two cameras' points close it, as chords within the rim
+    from bodyscan.recon.surface.complete import part_shape
+
+    a = np.array([0.05, 0.03, 0.09])
+    u, v = np.meshgrid(np.linspace(0, np.pi, 400), np.linspace(0, 2 * np.pi, 800))
+    d = np.column_stack([np.sin(u.ravel()) * np.cos(v.ravel()), np.sin(u.ravel()) * np.sin(v.ravel()),
+                         np.cos(u.ravel())])
+    P, N = d * a, d / a
+    P, vd = zbuffer(P, N / np.linalg.norm(N, axis=1, keepdims=True), 0.005)
+    p = 1.6   # Thomsen's approximation of the ellipsoid's area (within about 1 %)
+    true = 4 * np.pi * (((a[0] * a[1]) ** p + (a[0] * a[2]) ** p + (a[1] * a[2]) ** p) / 3) ** (1 / p)
+    images = S.view_surface(P, vd, SurfaceParams(), 0.005)
+    closed = S.view_surface(P, vd, SurfaceParams(), 0.005, part_shape(P, np.zeros((0, 3)), "forearm_l"))
+    assert S.face_areas(P, images).sum() < 0.85 * true < 0.9 * true < S.face_areas(P, closed).sum() < true
+    assert np.isin(S.face_keys(images), S.face_keys(closed)).all()
+    c = P[closed].mean(axis=1)
+    depth = (1 - ((c / a) ** 2).sum(axis=1)) / np.linalg.norm(2 * c / a ** 2, axis=1)
+    assert depth.max() < 0.005 and depth.min() > -0.0005              # chords, never outside
+    rim = closed[~np.isin(S.face_keys(closed), S.face_keys(images))]
+    assert len(rim) and (vd[rim][:, :, 1] > 0).any(axis=1).all() and (vd[rim][:, :, 1] < 0).any(axis=1).all()

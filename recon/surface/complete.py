@@ -1,14 +1,18 @@
 """Completion beyond the paper: every seen point in the surface (the far charts).
 
 `far_charts`: the points that no fitted section explains (beyond T_d of every section: hands,
-feet, the points of a section listed unfitted) are grouped into connected parts, and each part
-of at least ``far_min_points`` points gets a chart of its own, an elliptic column along the part's
-principal axis (open at the end that joins the body, closed by a cap at the other), which also
-holds the meshed points within ``far_join`` spacings of the part, so that the part's surface
-joins its section's. The charts are triangulated and cleaned like any section's
-(`recon.surface.mesh.section_surface`, then the merge and the air rules); their faces carry the
-section whose axis comes nearest (a hand counts as its forearm, a foot as its lower leg).
-Smaller parts are outliers and stay out of the surface.
+feet, the points of a section listed unfitted; and the forearm and lower-leg points past the
+fitted wrist and ankle, `past_joints`, which the paper's model lengthens its columns over) are
+grouped into connected parts, and each part of at least ``far_min_points`` points gets a chart of
+its own, which also holds the meshed points within ``far_join`` spacings of the part, so that the
+part's surface joins its section's. With ``far_view`` the chart is the range image each camera
+took of the part, triangulated across its view (`recon.surface.mesh.view_surface`: a hand or a
+foot is a height field over its camera's image, whatever its shape); otherwise (the chart kept
+for `closed_surface`) an elliptic column along the part's principal axis (open at the end that
+joins the body, closed by a cap at the other), triangulated like a section
+(`recon.surface.mesh.section_surface`). Then the merge and the air rules as for any section; the
+faces carry the section whose axis comes nearest (a hand counts as its forearm, a foot as its
+lower leg). Smaller parts are outliers and stay out of the surface.
 
 The closed surface (the method ``proposed-closed``) is `recon.surface.closed`.
 """
@@ -51,6 +55,44 @@ def far_parts(points: np.ndarray, far: np.ndarray, link: float, min_points: int)
     count = np.bincount(lab)
     order = np.argsort(-count, kind="stable")
     return [idx[lab == c] for c in order if count[c] >= min_points]
+
+
+#: The limb sections whose fitted column goes on over a hand or a foot, and the joint that ends them.
+DISTAL = {"forearm_l": "wrist_l", "forearm_r": "wrist_r", "lower_leg_l": "ankle_l", "lower_leg_r": "ankle_r"}
+
+
+def past_joints(points: np.ndarray, member: np.ndarray, fit, margin: float = 0.0,
+                hands: bool = True) -> np.ndarray:
+    """(n,) bool: the points of a forearm or lower leg past its fitted wrist or ankle.
+
+    The paper's model has no hands and feet, so the fit lengthens a forearm over its hand (and a
+    lower leg's end cap takes the heel): their points lie within T_d of the section's column, and
+    a hand's fingers and a foot's arch fold over it. Past the joint they are a far part's points
+    (`far_charts`: meshed as their cameras saw them) and no longer the section's.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    member : (n, 11) bool
+        Section memberships.
+    fit : BodyFit
+        Its sections and joints (``wrist_l``, ``ankle_l``, ...).
+    margin : float
+        Metres past the joint, along the section's axis.
+    hands : bool
+        Also the hands (False: the feet only; a hand's fingers and their gaps need a finer scan
+        than a foot).
+    """
+    out = np.zeros(len(points), dtype=bool)
+    for name, joint in DISTAL.items():
+        if not hands and name.startswith("forearm"):
+            continue
+        if name not in fit.sections or joint not in (fit.joints or {}):
+            continue
+        j = SECTIONS.index(name)
+        along = (points - np.asarray(fit.joints[joint], dtype=float)) @ fit.sections[name].axis
+        out |= member[:, j] & (along > margin)
+    return out
 
 
 def part_shape(part: np.ndarray, joined: np.ndarray, name: str) -> SectionShape:
@@ -100,7 +142,7 @@ def nearest_axis(part: np.ndarray, sections: dict) -> int:
 
 def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
                spacing: float, link: float = 4.0, join: float = 3.0, min_points: int = 5,
-               max_edge: float = 4.0, tree=None):
+               max_edge: float = 4.0, tree=None, hands: bool = True):
     """Charts for the points no fitted section explains (see the module docstring).
 
     Parameters
@@ -125,6 +167,10 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         few across its features: long triangles there span fingers and toes).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
+    hands : bool
+        False: the parts continuing a forearm (hands) are triangulated around their column
+        (``far_view`` off in their parameters): on a coarse scan a hand's range image bridges the
+        gaps between its fingers.
 
     Returns
     -------
@@ -148,7 +194,10 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
             continue
         near = near[meshed[near, j]]
         shape = part_shape(points[idx], points[near], SECTIONS[j])
-        jobs.append((j, np.union1d(idx, near), shape, {"max_edge_factor": max_edge}, idx))
+        change = {"max_edge_factor": max_edge}
+        if not hands and SECTIONS[j].startswith("forearm"):
+            change["far_view"] = False     # a hand on a coarse scan: around its column
+        jobs.append((j, np.union1d(idx, near), shape, change, idx))
     return jobs
 
 

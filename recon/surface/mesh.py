@@ -28,6 +28,10 @@ tangent planes at their vertices (covers over concave holes, ``concave_height``;
 holes in convex surface, inside the body, stay as in the paper), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
+
+The parts no section's chart fits (hands, feet: `recon.surface.complete.far_charts`) are
+triangulated as the range images their cameras took (`view_surface`: Delaunay across each
+camera's view, the rims between the images closed by their own chart's faces).
 """
 
 from __future__ import annotations
@@ -312,7 +316,6 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     if m < 3:
         return np.zeros((0, 3), dtype=np.int64)
     spacing = max(median_spacing(points) if spacing is None else spacing, 1e-9)
-    hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     R = float(shape.radii.mean())
     L = shape.length
     _, theta, h = shape.coords(points)
@@ -383,6 +386,15 @@ def section_surface(points: np.ndarray, shape: SectionShape,
             max_edge_length(points, allf) > params.fold_edge_factor * spacing)
         parts = [allf[~folded]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
+    return _trim(points, faces, view_dir, params, spacing)
+
+
+def _trim(points: np.ndarray, faces: np.ndarray, view_dir, params: SurfaceParams, spacing: float) -> np.ndarray:
+    """``faces`` (k, 3) of a chart's Delaunay triangulation without its hull's long slivers (the
+    boundary peel, ``hull_edge_factor`` / ``hull_edge_min``) and, with ``max_edge_factor`` or
+    ``cover_max_edge``, without its long triangles; lengths as the camera saw them
+    (`view_edge_length`)."""
+    hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side, params.peel_stretch)
     faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
     limit = np.inf if params.max_edge_factor <= 0 else params.max_edge_factor * spacing
@@ -391,6 +403,70 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     if np.isfinite(limit) and len(faces):
         faces = faces[seen_len <= limit]
     return faces
+
+
+def view_surface(points: np.ndarray, view_dir: np.ndarray, params: SurfaceParams = SurfaceParams(),
+                 spacing: float | None = None, shape: SectionShape | None = None) -> np.ndarray:
+    """Triangulate points as the range images their cameras took: per camera, by Delaunay across
+    its viewing direction.
+
+    A camera measures one point per ray, so what one camera saw of a part is a height field over
+    the plane across its view, whatever the part's shape (a hand's fingers, a foot turned out from
+    its leg): Delaunay in that plane joins each point to its neighbours in the image, and never
+    one layer of the surface to another behind it the same camera saw (a chart around a fitted
+    axis folds there). Depth steps and the hull's slivers are removed as on any chart
+    (`view_edge_length`, with ``peel_stretch``; the boundary peel and ``max_edge_factor``). The
+    cameras are told apart by the sign of the viewing direction along the points' principal
+    viewing axis (the scanner's heads face each other).
+
+    Parameters
+    ----------
+    points : (m, 3) float, metres
+    view_dir : (m, 3) or (3,) float
+        Unit directions of ``points`` toward their cameras.
+    params : SurfaceParams
+    spacing : float, optional
+        Median point spacing, metres (default: measured on ``points``).
+    shape : SectionShape, optional
+        A chart around the points (`section_surface`): its faces that join the two cameras' points
+        and lie along no inner edge of their images close the rims between the images (the sides
+        of a foot, whose length runs along the view; the edge of a hand).
+
+    Returns
+    -------
+    faces : (k, 3) int
+        Triangles over ``points`` (unoriented; see `orient_faces`).
+    """
+    m = len(points)
+    if m < 3:
+        return np.zeros((0, 3), dtype=np.int64)
+    spacing = max(median_spacing(points) if spacing is None else spacing, 1e-9)
+    vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), (m, 3))
+    _, vec = np.linalg.eigh(vd.T @ vd)
+    side = vd @ vec[:, 2] >= 0
+    parts = []
+    for s in (True, False):
+        sel = np.flatnonzero(side == s)
+        if len(sel) < 3:
+            continue
+        d = vd[sel].sum(axis=0)
+        d /= max(float(np.linalg.norm(d)), 1e-300)
+        e1 = np.cross(d, np.eye(3)[int(np.argmin(np.abs(d)))])
+        e1 /= np.linalg.norm(e1)
+        simp = _delaunay(points[sel] @ np.column_stack([e1, np.cross(d, e1)]))
+        if simp is not None:
+            parts.append(sel[simp])
+    faces = _trim(points, np.concatenate(parts).astype(np.int64), view_dir, params, spacing) if parts \
+        else np.zeros((0, 3), dtype=np.int64)
+    if shape is None or side.all() or not side.any():
+        return faces
+    # the rims: the chart's faces joining two cameras' points, along no inner edge of the images
+    rim = section_surface(points, shape, params, spacing, view_dir)
+    rim = rim[side[rim].any(axis=1) & ~side[rim].all(axis=1)]
+    keys = edge_keys(np.concatenate([faces, rim]))
+    u, c = np.unique(keys[:len(faces)], return_counts=True)
+    rim = rim[~np.isin(keys[len(faces):], u[c >= 2]).any(axis=1)]
+    return np.concatenate([faces, rim])
 
 
 def _end_loops(faces: np.ndarray, h: np.ndarray, length: float):
@@ -837,7 +913,10 @@ def _chart_faces(points: np.ndarray, idx: np.ndarray, job, params: SurfaceParams
     over the points ``idx``; a far part's chart keeps only faces with an edge between its own
     points (the rest are other charts')."""
     vd = None if view_dir is None else (view_dir[idx] if np.ndim(view_dir) == 2 else view_dir)
-    f = idx[section_surface(points[idx], job[2], params, spacing, vd)]
+    if len(job) > 4 and params.far_view and vd is not None:   # a far part: its range images
+        f = idx[view_surface(points[idx], vd, params, spacing, job[2])]
+    else:
+        f = idx[section_surface(points[idx], job[2], params, spacing, vd)]
     if len(job) > 4:
         f = f[np.isin(f, job[4]).sum(axis=1) >= 2]
     return f
