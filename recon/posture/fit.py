@@ -274,9 +274,10 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
     R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top)
     sample = points[::max(1, len(points) // params.fit_max_points + 1)]
     n = int(params.fit_facing)
-    fits, errors = {}, []
+    fits, errors, tried = {}, [], set()
 
     def attempt(i):
+        tried.add(i)
         R = rotvec(np.array([0.0, 0.0, 2 * np.pi * i / n])) @ R0
         try:
             # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
@@ -299,7 +300,7 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
             same = set(other[2].unfitted) == set(sure[2].unfitted)
             return (other if same and other[1] > sure[1] + params.fit_facing_margin else sure)[2]
     for i in range(n):
-        if i not in fits:
+        if i not in tried:
             attempt(i)
     if not fits:
         raise errors[0]
