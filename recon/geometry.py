@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 
@@ -15,9 +17,13 @@ def fibonacci_sphere(n: int, hemisphere: bool = False) -> np.ndarray:
 
 
 def cross(a, b) -> np.ndarray:
-    """Cross product of (..., 3) arrays (np.cross is slow on small arrays)."""
+    """Cross product of (..., 3) arrays (np.cross is slow on small arrays; two (3,) vectors, the
+    searches' commonest call, are multiplied as Python floats: the same products)."""
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
+    if a.shape == (3,) and b.shape == (3,):
+        (a0, a1, a2), (b0, b1, b2) = a.tolist(), b.tolist()
+        return np.array([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0])
     a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
     b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
     return np.stack(np.broadcast_arrays(a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0), axis=-1)
@@ -25,6 +31,10 @@ def cross(a, b) -> np.ndarray:
 
 def perp(d: np.ndarray) -> np.ndarray:
     """(..., 3) a unit vector perpendicular to each unit vector ``d`` (..., 3)."""
+    if np.shape(d) == (3,):
+        # one vector (the searches' commonest call): the same arithmetic on Python floats
+        u = cross(d, (0.0, 0.0, 1.0) if abs(float(d[2])) < 0.9 else (1.0, 0.0, 0.0)).tolist()
+        return np.array(u) / math.sqrt(u[0] * u[0] + u[1] * u[1] + u[2] * u[2])
     ref = np.where(np.abs(d[..., 2:3]) < 0.9, [0.0, 0.0, 1.0], [1.0, 0.0, 0.0])
     u = cross(d, ref)
     return u / np.linalg.norm(u, axis=-1, keepdims=True)
@@ -42,6 +52,9 @@ def rotvec(v: np.ndarray) -> np.ndarray:
 
 def unit(v):
     """``v`` (..., 3) scaled to unit length along its last axis."""
+    if np.shape(v) == (3,):
+        x, y, z = np.asarray(v, dtype=np.float64).tolist()
+        return v / math.sqrt(x * x + y * y + z * z)
     return v / np.linalg.norm(v, axis=-1, keepdims=True)
 
 
@@ -50,11 +63,15 @@ def tangent_dir(d0: np.ndarray, a: float, b: float, basis=None) -> np.ndarray:
     ``basis`` = (u, w) when given (a search calling this many times about one ``d0``), else by
     ``perp(d0)`` and ``d0 x perp(d0)``."""
     u, w = basis if basis is not None else (perp(d0), cross(d0, perp(d0)))
-    return unit(d0 * np.cos(np.hypot(a, b)) + (u * a + w * b) * np.sinc(np.hypot(a, b) / np.pi))
+    t = np.hypot(a, b)
+    return unit(d0 * np.cos(t) + (u * a + w * b) * np.sinc(t / np.pi))
 
 
 def frames_from_dirs(d: np.ndarray) -> np.ndarray:
     """(m, 3, 3) frames (rows x, y, axis) for unit directions ``d`` (m, 3)."""
+    if d.shape == (1, 3):
+        u = perp(d[0])
+        return np.array([[u, cross(d[0], u), d[0]]])
     u = perp(d)
     return np.stack([u, cross(d, u), d], axis=1)
 

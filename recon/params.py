@@ -898,23 +898,18 @@ class FitParams:
     fit_facing: int = field(default=4,  # 2.1: fit the cloud turned about the vertical to a facing read from its own
         metadata={"help": "fit the cloud turned to its own facing, retried in 360/this degree steps (0 = as it lies)", "unit": "", "range": (0, 36)})
                                            # shape (`recon.posture.fit.facing_frame`), so that a scan turned about the
-                                           # vertical gets the same fit, turned; when refused or with fit_facing_retry
-                                           # sections unfitted, also turned further in 360 / fit_facing degree steps,
+                                           # vertical gets the same fit, turned; when refused, with fit_facing_retry
+                                           # sections unfitted or explaining fewer than fit_min_coverage of the
+                                           # points, also turned further in 360 / fit_facing degree steps,
                                            # the best fit kept (`recon.posture.fit._fit_facings`); 0 = fit the cloud as it
                                            # lies (chosen; measured in the module docstring of recon.posture)
     fit_facing_retry: int = field(default=3,  # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
         metadata={"help": "this many sections unfitted: try the other facings too", "unit": "", "range": (0, 11)})
                                            # its way; a scan missing one limb is not fitted again, each try being a
                                            # chance to place the limb on points not its own; chosen)
-    fit_facing_reverse: int = field(default=1,  # 2.1: 1 = fit the reverse facing (turned 180 degrees) too and keep the fit that
-        metadata={"help": "1 = also fit the reverse facing and keep the fit explaining more points", "unit": "", "range": (0, 1)})
-                                           # explains more points when both list the same sections unfitted (front and
-                                           # back are the facing's least sure part; measured on 126 library scans at
-                                           # 10 mm: 116 -> 117 met issue 4's targets, 2 -> 1 wrong (a heavy body turned
-                                           # 30 degrees in the scanner, matched 17 cm low); the fit takes twice as long;
-                                           # chosen)
-    fit_facing_margin: float = field(default=0.02,  # 2.1: ... the reverse fit is kept only when it explains at least this larger
+    fit_facing_margin: float = field(default=0.02,  # 2.1: when the fit found the body facing the other way, the reverse fit
         metadata={"help": "the reverse fit is kept only when it explains at least this larger fraction of the points", "unit": "", "range": (0, 1)})
+                                           # (turned 180 degrees) is kept only when it explains at least this larger
                                            # fraction of the points (two right fits of one scan differ by up to 0.13,
                                            # two near-ties with one fit wrong by 0.002 and 0.011; chosen)
     fit_facing_band: float = field(default=0.70,  # 2.1: the facing is read from the points between this and
@@ -975,7 +970,7 @@ PAPER = {
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
-    "fit_facing": 0, "fit_facing_reverse": 0, "match_size_both": 0, "match_alternatives": 0,
+    "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0,
 }
 
 

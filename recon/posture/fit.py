@@ -7,17 +7,13 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    along x, front mostly toward -y), fitted there, and the fit turned back, so that a scan turned
    about the vertical gets the same fit, turned (the searches below run over finite sets of
    directions on an axis-aligned voxel grid: without it, a scan turned 60 or 250 degrees came
-   out differently, 73 of 84 library runs meeting issue 4's targets, 2 wrong). It is fitted in
-   the reverse facing too (turned 180 degrees: front and back are the facing's least sure part),
-   and the reverse fit kept when it explains at least `fit_facing_margin` more of the points and
-   lists the same sections unfitted.
-   When either is refused or leaves `fit_facing_retry` sections unfitted, it is made again turned
-   by 90 and 270 degrees, and the fit with fewest sections unfitted, then most points explained,
-   is kept (`_fit_facings`). Measured on the library at 10 mm (k = 1, 2, 3, 1 mm noise at k = 3,
-   the body turned 30 degrees in the scanner; 105 scans): the facing alone met issue 4's targets
-   on 96, the facing with retries at 3 unfitted 98 (1 wrong: a heavy body turned 30 degrees,
-   matched 17 cm low), the pair with retries 100 (0 wrong); with the bodies turned 200 degrees at
-   k = 2 too (126 scans), 116 (2 wrong) -> 117 (1 wrong).
+   out differently, 73 of 84 library runs meeting issue 4's targets, 2 wrong). When the fit found
+   the body facing the other way (front and back are the facing's least sure part), it is fitted
+   in the reverse facing too (turned 180 degrees), and the reverse fit kept when it explains at
+   least `fit_facing_margin` more of the points and lists the same sections unfitted. When a fit
+   is refused, leaves `fit_facing_retry` sections unfitted or explains fewer than
+   `fit_min_coverage` of the points, the cloud is fitted turned by 90, 180 and 270 degrees too, and
+   the fit with fewest sections unfitted, then most points explained, is kept (`_fit_facings`).
 1. Volume data (`recon.posture.volume`): voxel size from the sparsest part's density, clamped to
    [`voxel_min`, `voxel_max`]. The volume and the coarse match (steps 2-4) use at most
    `match_max_points` of the points, the fine adjustment (step 5) up to `fit_max_points`: a scan
@@ -253,47 +249,70 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
 
 
 def _fit_facings(points, params: FitParams) -> BodyFit:
-    """The fit of the cloud turned to its own facing (`facing_frame`), and to the reverse facing,
-    turned back; the best of them, or of all `fit_facing` turns when either fails. Every facing is
-    read from the cloud's shape, so a scan turned about the vertical gets the same fit, turned.
+    """The fit of the cloud turned to its own facing (`facing_frame`), turned back; made again in
+    the reverse facing when the fit found the body facing the other way, and in every turn of
+    360 / `fit_facing` degrees when it is in doubt. Every facing is read from the cloud's shape, so
+    a scan turned about the vertical gets the same fit, turned.
 
-    Front and back are the least sure part of a facing (the sign of a third moment), and the match
-    that follows depends on where it starts: so the cloud is fitted in its facing and turned by
-    180 degrees (`fit_facing_reverse`), and the reverse fit is kept only when it explains more of
-    the points (within `fit_coverage_distance`) by at least `fit_facing_margin`, and lists the
-    same sections unfitted. A section fitted in one facing and listed in the other is where one of
-    the two is wrong, and which one the points cannot tell: a limb missing from the scan placed on
+    Front and back are the facing's least sure part (the sign of a third moment: a walker's stride
+    turns it round), and the match depends on where it starts; the fit reads them from the data
+    (`recon.posture.joints.front_sign`). When it found the body's left at -x of the facing, the cloud
+    is fitted turned by 180 degrees too, and that fit kept when it explains at least
+    `fit_facing_margin` more of the points (within `fit_coverage_distance`) and lists the same
+    sections unfitted. A section fitted in one facing and listed in the other is where one of the
+    two is wrong, and which one the points cannot tell: a limb missing from the scan placed on
     points not its own (a T-pose without its left forearm: the reverse facing placed a "forearm"
     52 cm from the wrist, explaining more points with the rest of its fit), or a seen limb lost;
     the facing's own fit is kept.
 
-    When either of the two is refused or leaves at least `fit_facing_retry` sections unfitted (more
-    than one limb's worth: a fit that lost its way, rarely a scan missing that much), the cloud is
-    fitted in the other turns of 360 / `fit_facing` degrees too, and the fit with fewest sections
-    unfitted, then most points explained, is kept."""
+    A fit is in doubt when it is refused, leaves at least `fit_facing_retry` sections unfitted
+    (more than one limb's worth: a fit that lost its way, rarely a scan missing that much), or its
+    sections explain fewer than `fit_min_coverage` of the points (the check of `_finish` counts
+    the sections before they are split at the joints, this the reported ones: a heavy body turned
+    30 degrees in the scanner, matched 17 cm low, passed that check and explained 0.58 here). Then
+    the fit with fewest sections unfitted, then most points explained, of all turns is kept."""
     R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top)
     sample = points[::max(1, len(points) // params.fit_max_points + 1)]
     n = int(params.fit_facing)
-    pair = [0, n // 2] if params.fit_facing_reverse and n % 2 == 0 else [0]
-    fits, first = [], None
-    for i in pair + [i for i in range(n) if i not in pair]:
+    fits, errors, tried = {}, [], set()
+
+    def attempt(i):
+        tried.add(i)
         R = rotvec(np.array([0.0, 0.0, 2 * np.pi * i / n])) @ R0
         try:
             # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
             # (the volume's voxels and the searches would otherwise see different rounding)
-            fit = _estimate(np.round((points - c) @ R.T, 9), params).moved(R.T, c)
-            fits.append((-len(fit.unfitted), explained_fraction(sample, fit.sections, params.fit_coverage_distance), fit))
+            turned = _estimate(np.round((points - c) @ R.T, 9), params)
         except ReconError as e:
-            first = first or e
-            fits.append(None)
-        if len(fits) == len(pair) and all(f is not None and -f[0] < params.fit_facing_retry for f in fits):
-            first_fit, other = fits[0], fits[-1]
-            same = set(other[2].unfitted) == set(first_fit[2].unfitted)
-            return (other if same and other[1] > first_fit[1] + params.fit_facing_margin else first_fit)[2]
-    fits = [f for f in fits if f is not None]
+            errors.append(e)
+            return None
+        fit = turned.moved(R.T, c)
+        fits[i] = (-len(fit.unfitted), explained_fraction(sample, fit.sections, params.fit_coverage_distance), fit)
+        return fits[i] if -fits[i][0] < params.fit_facing_retry and fits[i][1] >= params.fit_min_coverage \
+            else None, _left_at(turned)
+
+    sure, left = attempt(0) or (None, 0.0)
+    if sure is not None and (left >= 0 or n % 2):
+        return sure[2]
+    if sure is not None:
+        other, _ = attempt(n // 2) or (None, 0.0)
+        if other is not None:
+            same = set(other[2].unfitted) == set(sure[2].unfitted)
+            return (other if same and other[1] > sure[1] + params.fit_facing_margin else sure)[2]
+    for i in range(n):
+        if i not in tried:
+            attempt(i)
     if not fits:
-        raise first
-    return max(fits, key=lambda f: f[:2])[2]
+        raise errors[0]
+    return max(fits.values(), key=lambda f: f[:2])[2]
+
+
+def _left_at(fit: BodyFit) -> float:
+    """Where the fit found the body's left along x: the summed x of its left-minus-right shoulder,
+    hip, elbow and knee joints (positive: the body faces -y, as `facing_frame` turns it)."""
+    j = fit.joints
+    return float(sum(j[a + "_l"][0] - j[a + "_r"][0] for a in ("shoulder", "hip", "elbow", "knee")
+                     if a + "_l" in j and a + "_r" in j))
 
 
 def _estimate(points, params: FitParams) -> BodyFit:
