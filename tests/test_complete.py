@@ -134,6 +134,11 @@ def test_seen_distance_is_the_signed_distance_to_a_sphere_and_stops_at_a_hole():
     r = rng.uniform(0.085, 0.115, len(u))
     dist, beside, _ = seen_distance(v, f, u * r[:, None], spacing)
     assert np.abs(dist - (0.1 - r)).max() < 0.0005 and beside.max() < spacing
+    # the weighted mean within 5 mm of the surface only: the same there, the sign right beyond
+    quick, _, _ = seen_distance(v, f, u * r[:, None], spacing, exact=0.005)
+    close = np.abs(0.1 - r) < 0.004
+    assert (quick[close] == dist[close]).all() and (~close).sum() > 50
+    assert (np.sign(quick[~close]) == np.sign(0.1 - r[~close])).all() and np.abs(quick - (0.1 - r)).max() < 0.002
     _, beside, _ = seen_distance(v, f, np.array([[0, 0, 0.1], [0, 0, 0.0995]]), spacing)
     assert beside.min() > 0.03    # over the hole: beside the mesh, by the hole's radius
 
