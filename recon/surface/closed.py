@@ -264,7 +264,7 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
 
 
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
-                  reach: float = np.inf):
+                  reach: float = np.inf, exact: float = np.inf):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -280,6 +280,10 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         Nearest mesh vertices averaged.
     reach : float
         Queries farther than this (metres) from every vertex are left out (NaN, inf, 0).
+    exact : float
+        Metres: queries farther than this from the nearest vertex's tangent plane take their
+        offset along its normal alone (one nearest-vertex query; the ``k`` nearest are averaged
+        only near the zero level).
 
     Returns
     -------
@@ -306,15 +310,19 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     k = min(k, len(used))
     tree = cKDTree(vp)
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
-    near = np.flatnonzero(np.isfinite(tree.query(at, 1, distance_upper_bound=reach)[0]))
-    d, i = tree.query(at[near], k)
-    d, i = d.reshape(len(near), k), i.reshape(len(near), k)
-    off = at[near, None, :] - vp[i]
-    along = np.einsum("mkj,mkj->mk", off, vn[i])
-    w = np.exp(-(d / spacing) ** 2) + 1e-300
-    dist[near] = -(w * along).sum(axis=1) / w.sum(axis=1)
-    beside[near] = np.sqrt(np.maximum(d[:, 0] ** 2 - along[:, 0] ** 2, 0))
-    vertex[near] = used[i[:, 0]]
+    d0, i0 = tree.query(at, 1, distance_upper_bound=reach)
+    near = np.flatnonzero(np.isfinite(d0))
+    d0, i0 = d0[near], i0[near]
+    along0 = np.einsum("mj,mj->m", at[near] - vp[i0], vn[i0])
+    dist[near] = -along0
+    beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
+    vertex[near] = used[i0]
+    fine = near[np.abs(along0) < exact]       # the weighted mean near the zero level only
+    if len(fine) and k > 1:
+        d, i = tree.query(at[fine], k)
+        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - vp[i], vn[i])
+        w = np.exp(-(d / spacing) ** 2) + 1e-300
+        dist[fine] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
 
 
@@ -322,6 +330,10 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
 #: takes the signed distance to it, from there to BAND_BLEND a blend of it and the solids' value
 #: (so that the fill meets the rim without a step).
 BAND_BESIDE, BAND_BLEND = 1.0, 2.0
+#: Grid steps from the nearest vertex's tangent plane within which the signed distance to the open
+#: mesh is the smooth weighted mean (`seen_distance`'s ``exact``); farther, the offset along that
+#: vertex's normal, as good where marching the grid needs little more than its sign.
+EXACT = 1.0
 
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
@@ -438,7 +450,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
     g = np.argwhere(near)
     dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing,
-                                    reach=np.hypot(band, BAND_BLEND) * spacing)
+                                    reach=np.hypot(band, BAND_BLEND) * spacing, exact=EXACT * voxel)
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
