@@ -848,7 +848,10 @@ def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
             # crown to sole through them size the body. One short chain alone is more often a leg
             # the match placed badly (a child's at 20 mm, k = 2: 0.78 of its trunk, the other 0.84)
             legs = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
-            short = [d for d in legs if _crotch_to_sole(pose, d, ratios[d], crotch)
+            # measured from the matched hips and from the crotch, a cut leg is short either way; a
+            # whole leg is long at least one way (a child matched too tall: its hips sit low; a
+            # stride: the crotch found low on a thigh)
+            short = [d for d in legs if max(ratios[d], _crotch_to_sole(pose, d, ratios[d], crotch))
                      < min_leg * ratios["trunk"]]
             cut = short if len(short) == 2 else []
             for d in cut:
