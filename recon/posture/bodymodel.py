@@ -33,6 +33,10 @@ import numpy as np
 #: Stature of the standard body, metres (average adult male).
 STATURE = 1.75
 
+#: Statures the fit sizes a body within, metres: a small child to a tall adult (the corpus draws
+#: anny's whole height range, 1.1 to 2.8 m tall, standing; sizing beyond 2.2 m gained no tune body).
+STATURE_RANGE = (0.8, 2.2)
+
 #: Limb chains: (proximal section, distal section, root joint, middle joint, end joint on the distal).
 LIMBS = (
     ("upper_arm_l", "forearm_l", "shoulder_l", "elbow_l", "wrist_l"),

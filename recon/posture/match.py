@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .bodymodel import LIMBS, StandardBody, kind_of, standard_body
+from .bodymodel import LIMBS, STATURE_RANGE, StandardBody, kind_of, standard_body
 from .joints import find_crotch
 from ..geometry import cross, fibonacci_sphere, frames_from_dirs, perp, rotvec, tangent_dir, unit
 from ..model import SectionShape
@@ -539,6 +539,18 @@ def _chain_extent(points, pose: Pose, dist: str) -> float | None:
     return p.length + tip
 
 
+def _crotch_to_sole(pose: Pose, dist: str, ratio: float, crotch: np.ndarray) -> float:
+    """A leg chain's length from the crotch seen in the points (not from the matched hip) to its
+    free end, over the model's crotch height ``(1 - CROWN_CROTCH)`` statures; ``ratio`` is the
+    chain's `_chain_extent` over the model's. Measured from the crotch like the trunk (crown to
+    crotch), it compares with it whatever the model's size: from the hips of a model too tall
+    (a child matched at 1.5 m), which sit too low, a whole leg measures short."""
+    body = pose.body
+    p = pose.sections[{s[1]: s[0] for s in LIMBS}[dist]]
+    length = ratio * body.limb_lengths(dist) + float((p.start - crotch) @ p.axis)
+    return length / ((1.0 - CROWN_CROTCH) * body.stature)
+
+
 def _roll_from_legs(points, centre, R, body: StandardBody) -> np.ndarray:
     """Turn the torso frame about its axis so that its x axis runs from one thigh to the other.
 
@@ -694,7 +706,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                     # Every candidate is matched again at this size: on a coarse volume (sparse
                     # scan, 40 mm voxels) the torso's own score hardly tells an upright torso from
                     # one tilted onto an arm; the whole-body match below does
-                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, 2.2)))
+                    body = standard_body(float(np.clip(ext, params.match_min_first_stature, STATURE_RANGE[1])))
                     cands = _match_torso(scorer, centroid, body, params,
                                          [(cc, RR) for _, cc, RR in _torso_choice(cands, params)], step=0.4)
         best, others, placed = match_at(body, cands, hang)
@@ -743,7 +755,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         s = float(np.median(use))
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
-        body = standard_body(float(np.clip(body.stature * s, 0.8, 2.2)))
+        body = standard_body(float(np.clip(body.stature * s, *STATURE_RANGE)))
         starts = [(pose.centre, pose.R)]
         u = upright_restart(pose, placed, params.match_upright_start) if params.match_resize_upright else None
         if u is not None:
@@ -763,7 +775,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         if params.match_size_both and adult and use is legs and \
                 abs(np.median(legs) - np.median(crown)) > params.match_resize_tolerance and \
                 pose.body.stature * np.median(legs) >= params.fit_anchor_min_stature:
-            other = standard_body(float(np.clip(pose.body.stature * np.median(crown), 0.8, 2.2)))
+            other = standard_body(float(np.clip(pose.body.stature * np.median(crown), *STATURE_RANGE)))
             extra = [(other, params.match_resized_anchor_shift)]
     # other torso poses, best first, for when the best one's fine fit fails its checks
     alts, seen = [], [pose]
@@ -836,7 +848,11 @@ def size_ratios(points, pose: Pose, min_leg: float = 0.0) -> dict:
             # crown to sole through them size the body. One short chain alone is more often a leg
             # the match placed badly (a child's at 20 mm, k = 2: 0.78 of its trunk, the other 0.84)
             legs = [d for d in ("lower_leg_l", "lower_leg_r") if d in ratios]
-            short = [d for d in legs if ratios[d] < min_leg * ratios["trunk"]]
+            # measured from the matched hips and from the crotch, a cut leg is short either way; a
+            # whole leg is long at least one way (a child matched too tall: its hips sit low; a
+            # stride: the crotch found low on a thigh)
+            short = [d for d in legs if max(ratios[d], _crotch_to_sole(pose, d, ratios[d], crotch))
+                     < min_leg * ratios["trunk"]]
             cut = short if len(short) == 2 else []
             for d in cut:
                 del ratios[d]
