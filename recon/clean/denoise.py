@@ -127,9 +127,10 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
     else:
         base = ((distance <= radius) | (np.arange(k) < min_points)).astype(np.float64)
     whole = beta0 = None
+    step = max(1, CHUNK * 40 // k)  # queries per chunk: about as much memory whatever k
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
         sample = _sample(m)
-        if m <= CHUNK:  # one chunk: its frames and first fits serve the scale and the fits
+        if m <= step:  # one chunk: its frames and first fits serve the scale and the fits
             whole = _Patch(points[neighbours], query, base)
             beta0 = whole.fit(whole.w0)
             res = (whole.z - whole.predict(beta0))[sample]
@@ -139,17 +140,17 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         scale = robust_scale(res[base[sample] > 0])
 
     def chunk(a):
-        f = whole if whole is not None else _Patch(points[neighbours[a:a + CHUNK]], query[a:a + CHUNK],
-                                                   base[a:a + CHUNK])
+        f = whole if whole is not None else _Patch(points[neighbours[a:a + step]], query[a:a + step],
+                                                   base[a:a + step])
         beta = beta0 if whole is not None else f.fit(f.w0)
         for _ in range(iterations):
             beta = f.fit(tukey_weights(f.z - f.predict(beta), scale) * f.w0)
-        normal[a:a + CHUNK] = f.normal
-        resid[a:a + CHUNK] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
-        center[a:a + CHUNK], frame[a:a + CHUNK], size[a:a + CHUNK] = f.center, f.frame, f.size
-        coef[a:a + CHUNK] = beta
+        normal[a:a + step] = f.normal
+        resid[a:a + step] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
+        center[a:a + step], frame[a:a + step], size[a:a + step] = f.center, f.frame, f.size
+        coef[a:a + step] = beta
 
-    _map(chunk, range(0, m, CHUNK), workers)
+    _map(chunk, range(0, m, step), workers)
     return LocalFit(normal, resid, center, frame, size, coef)
 
 
@@ -316,9 +317,23 @@ class Denoised:
     scale: float
 
 
+def fit_size(noise: float, spacing: float, error: float, neighbours: int, radius: float) -> int:
+    """Points of a denoising fit: enough that the fitted quadratic's own error, about
+    ``noise * sqrt(6 / k)`` (six coefficients from ``k`` noisy points), is at most ``error``
+    point spacings (``k = 6 (noise / (error * spacing))^2``), at least ``neighbours``, and at most
+    the points of one surface within ``radius`` (``pi (radius / spacing)^2``; a wider fit would
+    take a limb's curvature for noise). ``error=0``: ``neighbours``."""
+    k = int(neighbours)
+    if error > 0 and spacing > 0 and noise > 0:
+        cap = int(np.ceil(np.pi * (radius / spacing) ** 2)) if np.isfinite(radius) else 10 ** 9
+        k = max(k, min(int(np.ceil(6.0 * (noise / (error * spacing)) ** 2)), cap))
+    return k
+
+
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02, workers: int = 1, share: float = 3.0) -> Denoised:
+            radius: float = 0.02, workers: int = 1, share: float = 3.0, error: float = 0.0,
+            view: np.ndarray | None = None, graze: float = 2.0) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -345,6 +360,18 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         every point); every point is then moved by the mean of its `BLEND` nearest fits (a fit
         spans ``neighbours`` points, a cube a few: the fits overlap, and their mean is smoother
         than one fit per point). Isolated points (see ``isolation``) get a fit of their own.
+    error : float
+        The fits' own error, in point spacings: each section's fits take `fit_size` points, from
+        the noise measured on its first fits of ``neighbours`` points (leave-one-out residuals
+        over a sample); a noisy fine scan gets wider fits, a noise-free one keeps ``neighbours``
+        (0: always ``neighbours``).
+    view : (n, 3) or (3,) float, optional
+        Direction from each point towards its camera. Range noise lies along the ray: a point is
+        then moved along its ray back onto the fit (where the ray meets the surface), which also
+        undoes the noise's share across the surface, rather than along the fit's normal.
+    graze : float
+        Along the ray, the move across the surface is at most this many times the move along the
+        normal (a grazing ray would magnify the fit's own error).
 
     Returns
     -------
@@ -365,6 +392,11 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
             return None
         sub = points[idx]
         tree = cKDTree(sub)
+        if error > 0 and len(idx) > k:  # the section's noise, from leave-one-out fits of k points
+            pilot = _sample(len(sub), SAMPLE // 5)
+            d, nb = tree.query(sub[pilot], k=k + 1)
+            fit = local_fits(sub, sub[pilot], nb[:, 1:], distance=d[:, 1:], radius=radius)
+            k = min(fit_size(robust_scale(fit.residual), spacing, error, k, radius), len(idx))
         if share <= 0:
             d, nb = tree.query(sub, k=k)
             return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
@@ -387,9 +419,18 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
     scale = robust_scale(np.concatenate([f.residual for _, f in fits]))
+    ray = None if view is None else np.broadcast_to(np.asarray(view, dtype=np.float64), (n, 3))
     for idx, f in fits:
         r = np.clip(f.residual, -clamp * scale, clamp * scale)
-        np.add.at(shift, idx, -r[:, None] * f.normal)
+        step = f.normal
+        if ray is not None:  # along the ray: n + v_t / (n . v), v_t the ray's part across the surface
+            v = ray[idx] / np.linalg.norm(ray[idx], axis=1)[:, None]
+            cos = np.einsum("md,md->m", v, f.normal)
+            across = v - cos[:, None] * f.normal
+            tan = np.linalg.norm(across, axis=1) / np.maximum(np.abs(cos), 1e-12)
+            gain = np.where(tan > graze, graze / np.maximum(tan, 1e-12), 1.0)
+            step = f.normal + across / np.where(np.abs(cos) > 1e-12, cos, 1e-12)[:, None] * gain[:, None]
+        np.add.at(shift, idx, -r[:, None] * step)
         np.add.at(count, idx, 1.0)
         np.maximum.at(resid, idx, np.abs(f.residual))
     shift /= np.maximum(count, 1.0)[:, None]
