@@ -612,9 +612,6 @@ class CleanParams:
         "help": "denoising fits widen (beyond denoise_neighbours, within denoise_radius) until their "
                 "own error from the measured noise is at most this many point spacings (0 = off)",
         "unit": "", "range": (0.0, None)})
-    denoise_along_ray: bool = field(default=True, metadata={
-        "help": "move each point along its camera ray onto the fit (range noise lies along it), not "
-                "along the fit's normal (needs the view direction of each point)", "unit": "", "range": None})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={

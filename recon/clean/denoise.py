@@ -332,8 +332,7 @@ def fit_size(noise: float, spacing: float, error: float, neighbours: int, radius
 
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02, workers: int = 1, share: float = 3.0, error: float = 0.0,
-            view: np.ndarray | None = None, graze: float = 2.0) -> Denoised:
+            radius: float = 0.02, workers: int = 1, share: float = 3.0, error: float = 0.0) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -365,14 +364,6 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         the noise measured on its first fits of ``neighbours`` points (leave-one-out residuals
         over a sample); a noisy fine scan gets wider fits, a noise-free one keeps ``neighbours``
         (0: always ``neighbours``).
-    view : (n, 3) or (3,) float, optional
-        Direction from each point towards its camera. Range noise lies along the ray: a point is
-        then moved along its ray back onto the fit (where the ray meets the surface), which also
-        undoes the noise's share across the surface, rather than along the fit's normal.
-    graze : float
-        Along the ray, the move across the surface is at most this many times the move along the
-        normal (a grazing ray would magnify the fit's own error).
-
     Returns
     -------
     Denoised
@@ -419,18 +410,9 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
     scale = robust_scale(np.concatenate([f.residual for _, f in fits]))
-    ray = None if view is None else np.broadcast_to(np.asarray(view, dtype=np.float64), (n, 3))
     for idx, f in fits:
         r = np.clip(f.residual, -clamp * scale, clamp * scale)
-        step = f.normal
-        if ray is not None:  # along the ray: n + v_t / (n . v), v_t the ray's part across the surface
-            v = ray[idx] / np.linalg.norm(ray[idx], axis=1)[:, None]
-            cos = np.einsum("md,md->m", v, f.normal)
-            across = v - cos[:, None] * f.normal
-            tan = np.linalg.norm(across, axis=1) / np.maximum(np.abs(cos), 1e-12)
-            gain = np.where(tan > graze, graze / np.maximum(tan, 1e-12), 1.0)
-            step = f.normal + across / np.where(np.abs(cos) > 1e-12, cos, 1e-12)[:, None] * gain[:, None]
-        np.add.at(shift, idx, -r[:, None] * step)
+        np.add.at(shift, idx, -r[:, None] * f.normal)
         np.add.at(count, idx, 1.0)
         np.maximum.at(resid, idx, np.abs(f.residual))
     shift /= np.maximum(count, 1.0)[:, None]
