@@ -355,7 +355,8 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     workers : int
         Threads fitting sections at the same time (speed only).
     share : float
-        Fit only at one point per cube of this many spacings (at most ``radius / 2``; 0: at
+        Fit only at one point per cube of this many spacings, times ``sqrt(k / neighbours)`` for
+        fits widened to ``k`` points (at most ``radius / 2``; 0: at
         every point); every point is then moved by the mean of its `BLEND` nearest fits (a fit
         spans ``neighbours`` points, a cube a few: the fits overlap, and their mean is smoother
         than one fit per point). Isolated points (see ``isolation``) get a fit of their own.
@@ -393,7 +394,8 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
             return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
         far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
-        thin = _thin(sub, min(share * spacing, radius / 2))
+        # widened fits are shared over wider cubes: as many fits overlap each point whatever k
+        thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
         centres = np.concatenate([thin[~far[thin]], np.flatnonzero(far)])
         d, nb = tree.query(sub[centres], k=k)
         fit = local_fits(sub, sub[centres], nb, distance=d, radius=radius)
