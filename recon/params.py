@@ -608,6 +608,10 @@ class CleanParams:
         "help": "denoising fits only at one point per cube of this many point spacings, each point "
                 "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
         "range": (0.0, None)})
+    denoise_error: float = field(default=0.15, metadata={
+        "help": "denoising fits widen (beyond denoise_neighbours, within denoise_radius) until their "
+                "own error from the measured noise is at most this many point spacings (0 = off)",
+        "unit": "", "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={
@@ -625,6 +629,7 @@ class CleanParams:
                "an integer >= 10")
         _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
         _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
+        _check(self.denoise_error >= 0, "denoise_error", self.denoise_error, ">= 0 spacings")
         _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
 
 

@@ -387,9 +387,10 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         t0 = time.perf_counter()
         c = params.clean
-        dn = denoise(p, meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
+        # the far parts (hands, feet) are denoised with their sections, though meshed on their own charts
+        dn = denoise(p, member | meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
                      c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
-                     c.denoise_share)
+                     c.denoise_share, c.denoise_error)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0

@@ -198,3 +198,27 @@ def test_silhouettes_need_heads_facing_each_other():
     rays /= np.linalg.norm(rays, axis=1)[:, None]
     angle, mm = register_silhouettes(q, head, rays, PITCH).offset()
     assert angle < 0.05 and abs(mm - 2.0) < 0.3                           # facing each other: moved back
+
+
+def test_fit_size_follows_the_noise_within_the_radius():
+    from bodyscan.recon.clean.denoise import fit_size
+
+    assert fit_size(0.0, 0.002, 0.15, 40, 0.02) == 40            # noise-free: the neighbours
+    assert fit_size(0.001, 0.005, 0.15, 40, 0.02) == 40          # coarse scan: its noise is small
+    assert fit_size(0.001, 0.002, 0.15, 40, 0.02) == 67          # 6 (1 / 0.3)^2, rounded up
+    assert fit_size(0.002, 0.002, 0.15, 40, 0.02) == 267
+    assert fit_size(0.003, 0.002, 0.15, 40, 0.02) == 315         # pi (20 / 2)^2: the radius bounds it
+    assert fit_size(0.002, 0.002, 0.0, 40, 0.02) == 40           # off
+
+
+def test_fine_noisy_scan_gets_wider_fits():
+    # 2 mm pitch, 2 mm noise: 40 points span about 7 mm and leave about 0.8 mm of noise; fits
+    # widened to the measured noise come nearer the true cylinder
+    sigma, pitch = 0.002, 0.002
+    p, vd, head, true = scanned_cylinder(sigma, pitch=pitch, height=0.2)
+    inner = (true[:, 2] > 0.03) & (true[:, 2] < 0.17)
+    member = np.ones((len(p), 1), bool)
+    rms = [np.sqrt(np.mean(radial_error(denoise(p, member, pitch, error=e).points[inner]) ** 2))
+           for e in (0.0, 0.15)]
+    assert rms[1] < 0.8 * rms[0]
+    assert rms[1] < 0.3 * sigma

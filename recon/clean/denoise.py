@@ -127,9 +127,10 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
     else:
         base = ((distance <= radius) | (np.arange(k) < min_points)).astype(np.float64)
     whole = beta0 = None
+    step = max(1, CHUNK * 40 // k)  # queries per chunk: about as much memory whatever k
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
         sample = _sample(m)
-        if m <= CHUNK:  # one chunk: its frames and first fits serve the scale and the fits
+        if m <= step:  # one chunk: its frames and first fits serve the scale and the fits
             whole = _Patch(points[neighbours], query, base)
             beta0 = whole.fit(whole.w0)
             res = (whole.z - whole.predict(beta0))[sample]
@@ -139,17 +140,17 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         scale = robust_scale(res[base[sample] > 0])
 
     def chunk(a):
-        f = whole if whole is not None else _Patch(points[neighbours[a:a + CHUNK]], query[a:a + CHUNK],
-                                                   base[a:a + CHUNK])
+        f = whole if whole is not None else _Patch(points[neighbours[a:a + step]], query[a:a + step],
+                                                   base[a:a + step])
         beta = beta0 if whole is not None else f.fit(f.w0)
         for _ in range(iterations):
             beta = f.fit(tukey_weights(f.z - f.predict(beta), scale) * f.w0)
-        normal[a:a + CHUNK] = f.normal
-        resid[a:a + CHUNK] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
-        center[a:a + CHUNK], frame[a:a + CHUNK], size[a:a + CHUNK] = f.center, f.frame, f.size
-        coef[a:a + CHUNK] = beta
+        normal[a:a + step] = f.normal
+        resid[a:a + step] = f.zq - np.einsum("mp,mp->m", f.aq, beta)
+        center[a:a + step], frame[a:a + step], size[a:a + step] = f.center, f.frame, f.size
+        coef[a:a + step] = beta
 
-    _map(chunk, range(0, m, CHUNK), workers)
+    _map(chunk, range(0, m, step), workers)
     return LocalFit(normal, resid, center, frame, size, coef)
 
 
@@ -316,9 +317,22 @@ class Denoised:
     scale: float
 
 
+def fit_size(noise: float, spacing: float, error: float, neighbours: int, radius: float) -> int:
+    """Points of a denoising fit: enough that the fitted quadratic's own error, about
+    ``noise * sqrt(6 / k)`` (six coefficients from ``k`` noisy points), is at most ``error``
+    point spacings (``k = 6 (noise / (error * spacing))^2``), at least ``neighbours``, and at most
+    the points of one surface within ``radius`` (``pi (radius / spacing)^2``; a wider fit would
+    take a limb's curvature for noise). ``error=0``: ``neighbours``."""
+    k = int(neighbours)
+    if error > 0 and spacing > 0 and noise > 0:
+        cap = int(np.ceil(np.pi * (radius / spacing) ** 2)) if np.isfinite(radius) else 10 ** 9
+        k = max(k, min(int(np.ceil(6.0 * (noise / (error * spacing)) ** 2)), cap))
+    return k
+
+
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
-            radius: float = 0.02, workers: int = 1, share: float = 3.0) -> Denoised:
+            radius: float = 0.02, workers: int = 1, share: float = 3.0, error: float = 0.0) -> Denoised:
     """Move each point onto the robust surface fitted to its section's points near it.
 
     Parameters
@@ -341,11 +355,16 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     workers : int
         Threads fitting sections at the same time (speed only).
     share : float
-        Fit only at one point per cube of this many spacings (at most ``radius / 2``; 0: at
+        Fit only at one point per cube of this many spacings, times ``sqrt(k / neighbours)`` for
+        fits widened to ``k`` points (at most ``radius / 2``; 0: at
         every point); every point is then moved by the mean of its `BLEND` nearest fits (a fit
         spans ``neighbours`` points, a cube a few: the fits overlap, and their mean is smoother
         than one fit per point). Isolated points (see ``isolation``) get a fit of their own.
-
+    error : float
+        The fits' own error, in point spacings: each section's fits take `fit_size` points, from
+        the noise measured on its first fits of ``neighbours`` points (leave-one-out residuals
+        over a sample); a noisy fine scan gets wider fits, a noise-free one keeps ``neighbours``
+        (0: always ``neighbours``).
     Returns
     -------
     Denoised
@@ -365,12 +384,18 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
             return None
         sub = points[idx]
         tree = cKDTree(sub)
+        if error > 0 and len(idx) > k:  # the section's noise, from leave-one-out fits of k points
+            pilot = _sample(len(sub), SAMPLE // 5)
+            d, nb = tree.query(sub[pilot], k=k + 1)
+            fit = local_fits(sub, sub[pilot], nb[:, 1:], distance=d[:, 1:], radius=radius)
+            k = min(fit_size(robust_scale(fit.residual), spacing, error, k, radius), len(idx))
         if share <= 0:
             d, nb = tree.query(sub, k=k)
             return idx, d[:, 1] > isolation * spacing, local_fits(sub, sub, nb, distance=d, radius=radius)
         far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
-        thin = _thin(sub, min(share * spacing, radius / 2))
+        # widened fits are shared over wider cubes: as many fits overlap each point whatever k
+        thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
         centres = np.concatenate([thin[~far[thin]], np.flatnonzero(far)])
         d, nb = tree.query(sub[centres], k=k)
         fit = local_fits(sub, sub[centres], nb, distance=d, radius=radius)
