@@ -609,8 +609,8 @@ class CleanParams:
                 "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
         "range": (0.0, None)})
     denoise_error: float = field(default=0.15, metadata={
-        "help": "denoising fits widen (beyond denoise_neighbours, within denoise_radius) until their "
-                "own error from the measured noise is at most this many point spacings (0 = off)",
+        "help": "denoising fits widen (past denoise_neighbours, within denoise_radius) until their "
+                "error from the measured noise is at most this many spacings (0 = off)",
         "unit": "", "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
