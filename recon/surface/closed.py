@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..geometry import perp
+
 
 #: The six tetrahedra of a cube (corner k at offset (k & 1, k >> 1 & 1, k >> 2 & 1)), all around
 #: the diagonal 0-7 (Kuhn): neighbouring cubes split their shared faces alike, so the tetrahedra
@@ -466,8 +468,7 @@ def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
     nor meet in a centre (within ``spacing``)."""
     a = view_dir.mean(axis=0)
     a /= np.linalg.norm(a)
-    e1 = np.cross(a, [0.0, 0.0, 1.0] if abs(a[2]) < 0.9 else [1.0, 0.0, 0.0])
-    e1 /= np.linalg.norm(e1)
+    e1 = perp(a)
     e2 = np.cross(a, e1)
     if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
         return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
