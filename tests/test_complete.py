@@ -12,6 +12,7 @@ from bodyscan.recon.surface.closed import marching_tetrahedra, radial_field, see
 from bodyscan.recon.model import SECTIONS, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
+from views import front_rear_zbuffer
 
 FOREARM, LOWER_LEG = SECTIONS.index("forearm_l"), SECTIONS.index("lower_leg_l")
 HAND, FOOT = 11, 12   # labels of the extremities' true points (scored as forearm / lower leg)
@@ -46,15 +47,7 @@ def with_hand_and_foot():
         inside |= (sh.coords(P)[0] < -1e-4) & (L != j)
     P, L, N = P[~inside], L[~inside], N[~inside]
     # front and rear z-buffer on a 10 mm grid (as capsule_body)
-    ix, iz = np.floor(P[:, 0] / 0.01).astype(int), np.floor(P[:, 2] / 0.01).astype(int)
-    key = (ix - ix.min()) * 100000 + (iz - iz.min())
-    keep, vd = np.zeros(len(P), bool), np.zeros_like(P)
-    for sign in (1, -1):
-        o = np.lexsort((sign * P[:, 1], key))
-        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
-        first = first[N[first, 1] * -sign > 0.05]
-        keep[first] = True
-        vd[first] = (0, -sign, 0)
+    keep, vd = front_rear_zbuffer(P, N, 0.01)
     P = P[keep] + np.random.default_rng(0).normal(0, 0.0005, (keep.sum(), 3))
     return P, L[keep], vd[keep], fit, shapes
 

@@ -8,6 +8,7 @@ import pytest
 from bodyscan.recon import ReconError, ReconParams, reconstruct
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.surface.mesh import model_outward
+from views import front_rear_zbuffer
 
 X = np.array([1.0, 0, 0])
 ARMS = [SECTIONS.index(s) for s in ("upper_arm_l", "upper_arm_r", "forearm_l", "forearm_r")]
@@ -50,17 +51,7 @@ def capsule_body(gap=0.02, pixel=0.01, seed=0):
     N = np.zeros_like(P)
     for j, name in enumerate(SECTIONS):
         N[L == j] = model_outward(sections[name], P[L == j])
-    ix = np.floor(P[:, 0] / pixel).astype(int)
-    iz = np.floor(P[:, 2] / pixel).astype(int)
-    key = (ix - ix.min()) * 100000 + (iz - iz.min())
-    keep = np.zeros(len(P), bool)
-    vd = np.zeros_like(P)
-    for sign in (1, -1):  # sign 1: the front camera, at -y
-        o = np.lexsort((sign * P[:, 1], key))
-        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
-        first = first[N[first, 1] * -sign > 0.05]
-        keep[first] = True
-        vd[first] = (0, -sign, 0)
+    keep, vd = front_rear_zbuffer(P, N, pixel)
     rng = np.random.default_rng(seed)
     P = P[keep] + rng.normal(0, 0.0005, (keep.sum(), 3))
     joints = {"neck": np.array(S["head"][0]), "chest": np.array(S["chest"][0]),

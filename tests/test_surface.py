@@ -6,6 +6,7 @@ import pytest
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.params import SurfaceParams
 from bodyscan.recon.surface import mesh as S
+from views import ellipsoid, front_rear_zbuffer
 
 
 def edge_counts(faces):
@@ -439,31 +440,14 @@ def test_cover_max_edge_leaves_large_holes_open_and_covers_small_ones():
         assert ((np.abs(c[:, 2] - 0.3) < 0.006) & (c[:, 0] > 0.045)).any()
 
 
-def zbuffer(P, N, step):
-    """The points of ``P`` (k, 3) (outward normals ``N``) that parallel front (-y) and rear (+y)
-    cameras see on a ``step`` grid in x, z, and their viewing directions."""
-    ix, iz = np.floor(P[:, 0] / step).astype(int), np.floor(P[:, 2] / step).astype(int)
-    key = (ix - ix.min()) * 100000 + (iz - iz.min())
-    keep, vd = np.zeros(len(P), bool), np.zeros_like(P)
-    for sign in (1, -1):
-        o = np.lexsort((sign * P[:, 1], key))
-        first = o[np.r_[True, key[o][1:] != key[o][:-1]]]
-        first = first[N[first, 1] * -sign > 0.05]
-        keep[first] = True
-        vd[first] = (0, -sign, 0)
-    return P[keep], vd[keep]
-
-
 def test_view_surface_meshes_a_flat_hand_on_its_surface():
     # a flat ellipsoid (a hand, 9 x 3 x 18 cm) seen front and rear on a 5 mm grid: each camera's
     # range image is triangulated across its view, so every face lies on the surface (a face
     # joining the front to the back would pass 1.5 cm inside) and almost every point is in a face
     a = np.array([0.045, 0.015, 0.09])
-    u, v = np.meshgrid(np.linspace(0, np.pi, 300), np.linspace(0, 2 * np.pi, 600))
-    d = np.column_stack([np.sin(u.ravel()) * np.cos(v.ravel()), np.sin(u.ravel()) * np.sin(v.ravel()),
-                         np.cos(u.ravel())])
-    P, N = d * a, d / a
-    P, vd = zbuffer(P, N / np.linalg.norm(N, axis=1, keepdims=True), 0.005)
+    P, N = ellipsoid(a, 300)
+    keep, vd = front_rear_zbuffer(P, N, 0.005)
+    P, vd = P[keep], vd[keep]
     f = S.view_surface(P, vd, SurfaceParams(), 0.005)
     assert len(np.unique(f)) > 0.95 * len(P)
     c = P[f].mean(axis=1)
@@ -495,11 +479,9 @@ def test_view_surface_closes_the_rim_between_the_cameras_images():
     from bodyscan.recon.surface.complete import part_shape
 
     a = np.array([0.05, 0.03, 0.09])
-    u, v = np.meshgrid(np.linspace(0, np.pi, 400), np.linspace(0, 2 * np.pi, 800))
-    d = np.column_stack([np.sin(u.ravel()) * np.cos(v.ravel()), np.sin(u.ravel()) * np.sin(v.ravel()),
-                         np.cos(u.ravel())])
-    P, N = d * a, d / a
-    P, vd = zbuffer(P, N / np.linalg.norm(N, axis=1, keepdims=True), 0.005)
+    P, N = ellipsoid(a, 400)
+    keep, vd = front_rear_zbuffer(P, N, 0.005)
+    P, vd = P[keep], vd[keep]
     p = 1.6   # Thomsen's approximation of the ellipsoid's area (within about 1 %)
     true = 4 * np.pi * (((a[0] * a[1]) ** p + (a[0] * a[2]) ** p + (a[1] * a[2]) ** p) / 3) ** (1 / p)
     images = S.view_surface(P, vd, SurfaceParams(), 0.005)
