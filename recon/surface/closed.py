@@ -4,7 +4,7 @@
 its chart's cylindrical coordinates, give a radial height field r(theta, h) whose holes (what the
 scanner did not see) are filled by a discrete Laplace equation within the model's envelope
 (`radial_field`); each field bounds a solid, the solids are united (a maximum of their signed
-values on a grid) and the union's surface is extracted by marching tetrahedra: one closed,
+values on a grid) and the union's surface is extracted by marching cubes: one closed,
 consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
 holds another section's points, so no surface spans the air between two sections.
 
@@ -22,14 +22,9 @@ import numpy as np
 from ..geometry import perp
 
 
-#: The six tetrahedra of a cube (corner k at offset (k & 1, k >> 1 & 1, k >> 2 & 1)), all around
-#: the diagonal 0-7 (Kuhn): neighbouring cubes split their shared faces alike, so the tetrahedra
-#: tile the grid and marching them gives a closed manifold surface.
-_TETS = np.array([[0, 1, 3, 7], [0, 1, 5, 7], [0, 2, 3, 7], [0, 2, 6, 7], [0, 4, 5, 7], [0, 4, 6, 7]])
-
-
-def marching_tetrahedra(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
-    """The surface ``values = 0`` of a grid, closed and consistently wound outward.
+def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
+    """The surface ``values = 0`` of a grid, closed and wound outward: Lewiner's marching cubes
+    (scikit-image), whose resolution of the ambiguous cubes makes the surface a 2-manifold.
 
     Parameters
     ----------
@@ -40,7 +35,7 @@ def marching_tetrahedra(values: np.ndarray, origin: np.ndarray, step: float, lab
     step : float
         Grid spacing, metres.
     labels : (nx, ny, nz) int, optional
-        A label per grid point; each face takes the label of an inside corner of its tetrahedron.
+        A label per grid point; each face takes the label of the most inside corner of its cube.
 
     Returns
     -------
@@ -50,61 +45,22 @@ def marching_tetrahedra(values: np.ndarray, origin: np.ndarray, step: float, lab
     face_label : (f,) int
         Per face (zeros without ``labels``).
     """
+    from skimage.measure import marching_cubes
+
+    # no grid value exactly at the level: every vertex then lies inside one grid edge, so the
+    # cubes sharing that edge share the vertex (a level value would put several on one corner)
     v = np.where(values == 0, 1e-12, values).astype(np.float64)
-    nx, ny, nz = v.shape
-    inside = v > 0
-    corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])
-    flat = v.ravel()
-    ins = inside.ravel()
-    off = np.ravel_multi_index(corner.T, v.shape)
-    cnt = sum(inside[i:nx - 1 + i, j:ny - 1 + j, k:nz - 1 + k].astype(np.int8) for i, j, k in corner)
-    cube = np.flatnonzero((cnt > 0) & (cnt < 8))             # cubes the surface crosses
-    base = np.ravel_multi_index(np.unravel_index(cube, (nx - 1, ny - 1, nz - 1)), v.shape)
-    tet = (base[:, None, None] + off[_TETS][None]).reshape(-1, 4)
-    s = ins[tet]
-    n_in = s.sum(axis=1)
-    tet, s, n_in = tet[(n_in > 0) & (n_in < 4)], s[(n_in > 0) & (n_in < 4)], n_in[(n_in > 0) & (n_in < 4)]
-    # order each tetrahedron's corners: inside ones first
-    order = np.argsort(~s, axis=1, kind="stable")
-    t = np.take_along_axis(tet, order, axis=1)
-    tris = []      # (m, 3, 2) corner pairs of each triangle's three edge points, and the tet row
-    rows = []
-    one = np.flatnonzero(n_in == 1)        # a | b c d
-    tris.append(np.stack([t[one][:, [0, 1]], t[one][:, [0, 2]], t[one][:, [0, 3]]], axis=1))
-    rows.append(one)
-    three = np.flatnonzero(n_in == 3)      # a b c | d
-    tris.append(np.stack([t[three][:, [0, 3]], t[three][:, [1, 3]], t[three][:, [2, 3]]], axis=1))
-    rows.append(three)
-    two = np.flatnonzero(n_in == 2)        # a b | c d: the quad ac ad bd bc
-    q = t[two]
-    tris.append(np.stack([q[:, [0, 2]], q[:, [0, 3]], q[:, [1, 3]]], axis=1))
-    tris.append(np.stack([q[:, [0, 2]], q[:, [1, 3]], q[:, [1, 2]]], axis=1))
-    rows += [two, two]
-    pairs = np.concatenate(tris)                           # (m, 3, 2): inside corner, outside corner
-    row = np.concatenate(rows)
-    key = pairs[..., 0].astype(np.int64) * flat.size + pairs[..., 1]
-    uniq, inv = np.unique(key.ravel(), return_inverse=True)
-    a, b = uniq // flat.size, uniq % flat.size
-    w = flat[a] / (flat[a] - flat[b])                      # a inside (> 0), b outside (< 0)
-    w = np.clip(w, 1e-3, 1 - 1e-3)
-    pa = np.column_stack(np.unravel_index(a, v.shape)).astype(np.float64)
-    pb = np.column_stack(np.unravel_index(b, v.shape)).astype(np.float64)
-    vertices = origin + step * (pa + w[:, None] * (pb - pa))
-    faces = inv.reshape(-1, 3)
-    # outward: from the tetrahedron's inside corners toward its outside ones
-    tt, ss = tet[row], s[row]
-    cp = np.stack(np.unravel_index(tt, v.shape), axis=-1).astype(np.float64)
-    k_in = ss.sum(axis=1, keepdims=True)
-    out_dir = ((cp * ~ss[..., None]).sum(axis=1) / (4 - k_in) - (cp * ss[..., None]).sum(axis=1) / k_in)
-    p = vertices[faces]
-    nrm = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    flip = np.einsum("ij,ij->i", nrm, out_dir) < 0
-    faces[flip] = faces[flip][:, ::-1]
+    vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
+    faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
-        face_label = labels.ravel()[pairs[:, 0, 0]]
-    return vertices, faces, face_label
+        cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2)
+        corners = cube[:, None, :] + np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])[None]
+        flat = np.ravel_multi_index(tuple(corners.reshape(-1, 3).T), v.shape).reshape(-1, 8)
+        inner = np.take_along_axis(flat, np.argmax(v.ravel()[flat], axis=1)[:, None], axis=1)[:, 0]
+        face_label = labels.ravel()[inner]
+    return origin + step * vertices, faces, face_label
 
 
 #: A row's gap in the seen surface is a hole to fill when it spans at most this fraction of the turn.
@@ -342,7 +298,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
                    view=None, carve: float = 1.0, background: int = 1):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
-    radial height field with the holes filled (`radial_field`), by marching tetrahedra.
+    radial height field with the holes filled (`radial_field`), by marching cubes.
 
     Two sections meet where their solids overlap (their seams share points), and nothing joins
     them across the air: each solid holds only its own section's surface and its fill stays
@@ -431,7 +387,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
-    vertices, faces, face_label = marching_tetrahedra(F, lo, voxel, lab)
+    vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     return vertices, faces, face_label.astype(np.int8)
 
 
