@@ -217,8 +217,9 @@ def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 15, open: 2.4 % of the closed surface's area stands more "
-                   "than 5 mm outside (max 3.8 cm): 0.9 % on the waist, whose solid the hand's points clustered into it fatten, 1.0 % "
-                   "on the left thigh, 0.3 % the crown's last rows past the head")
+                   "than 5 mm outside (max 3.8 cm): 0.9 % on the waist, whose solid the hand's points "
+                   "clustered into it fatten, 1.0 % on the left thigh, 0.3 % the crown's last rows "
+                   "past the head")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
