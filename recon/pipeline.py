@@ -404,7 +404,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         from .surface.complete import extremity_charts
 
         sp = params.surface
-        extra = extremity_charts(p, ext, fit, meshed, spacing, sp.far_join, sp.far_max_edge, tree) + extra
+        extra = extremity_charts(p, ext, fit, meshed, spacing, sp.far_join, sp.far_max_edge, tree,
+                                 spacing <= sp.far_hand_spacing) + extra
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)

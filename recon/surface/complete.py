@@ -3,9 +3,12 @@ charts).
 
 `extremity_charts`: the hands and feet of the body model (`recon.posture.extremities`, placed past
 the fitted wrists and ankles; their points given by `recon.clustering.cluster.assign_extremities`)
-are meshed like any section, around their fitted column, and joined to the forearm (lower leg)
-they continue, whose label their faces carry (a hand is scored as its forearm, a foot as its lower
-leg).
+are meshed on charts of their own, joined to the forearm (lower leg) they continue, whose label
+their faces carry (a hand is scored as its forearm, a foot as its lower leg). With ``far_view``
+each is meshed as the range images its cameras took (`recon.surface.mesh.view_surface`, a height
+field per camera that cannot fold over the curled fingers or the arch), the rims between the
+images closed by its fitted column; a hand on a scan coarser than ``far_hand_spacing`` around its
+column, like a section (its range image joins the fingers across their gaps).
 
 `far_charts`: the points that no fitted section explains (beyond T_d of every section: the points
 of a section listed unfitted, a hand or a foot the model has none for) are grouped into connected
@@ -167,7 +170,7 @@ def _joined(tree, points: np.ndarray, idx: np.ndarray, radius: float) -> np.ndar
 
 
 def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarray, spacing: float,
-                     join: float = 3.0, max_edge: float = 4.0, tree=None):
+                     join: float = 3.0, max_edge: float = 4.0, tree=None, hand_view: bool = True):
     """Charts of the hands and feet of the body model (`recon.model.EXTREMITIES`).
 
     Parameters
@@ -187,12 +190,16 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         Spacings: longer triangles are left out (as `far_charts`: a hand's or a foot's points are
         few across its features, long triangles there span fingers and toes).
     tree : scipy.spatial.cKDTree, optional
+    hand_view : bool
+        False: the hands are triangulated around their column (``far_view`` off in their
+        parameters): on a coarse scan a hand's range image bridges the gaps between its fingers.
 
     Returns
     -------
     list of (int, (k,) int, SectionShape, dict, (k',) int)
         As `far_charts`: the section the extremity is scored as, its points and the joined ones,
-        its fitted column, the surface parameter changes, its own points.
+        its fitted column (the rim chart of its range images), the surface parameter changes, its
+        own points.
     """
     from scipy.spatial import cKDTree
 
@@ -207,9 +214,10 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         j = SECTIONS.index(parent)
         near = _joined(tree, points, idx, join * spacing)
         near = near[meshed[near, j]]
-        # around its column, like a section: a hand's range image joins its fingers across their gaps
-        jobs.append((j, np.union1d(idx, near), fit.extremities[name], {"max_edge_factor": max_edge,
-                                                                         "far_view": False}, idx))
+        change = {"max_edge_factor": max_edge}
+        if not hand_view and name.startswith("hand"):
+            change["far_view"] = False     # a hand on a coarse scan: around its column
+        jobs.append((j, np.union1d(idx, near), fit.extremities[name], change, idx))
     return jobs
 
 
