@@ -6,8 +6,9 @@ that section's model than to any other, and places an elliptic column through th
 principal axis (a hand: a flat column past the wrist; a foot: a column from the ankle forward along
 the floor), open at the joint and capped at the fingertips (toes); a small least-squares fit
 (`recon.posture.adjust.fit_section`) moves it onto the points. The clustering gives the column its
-points (`recon.clustering.cluster.assign_extremities`) and the surface stage meshes it like a
-section; a hand is still scored as its forearm and a foot as its lower leg.
+points (`recon.clustering.cluster.assign_extremities`) and the surface stage meshes them on a chart
+of their own (`recon.surface.complete.extremity_charts`); a hand is still scored as its forearm and
+a foot as its lower leg. `--param extremities=False` gives the paper's 11 sections.
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ def extremity_shape(points: np.ndarray, joint: np.ndarray, name: str) -> Section
     The axis is the points' principal axis, turned away from the joint; it starts at the joint's
     projection (or at the points' nearest end, if that lies behind it: a heel) and ends at the
     farthest point less the cap. Cross-section radii from the spread across the axis (a uniform
-    plate's half-width is 1.73 standard deviations), then one bounded least-squares fit of the
-    axis (`fit_section`, radii kept).
+    plate's half-width is 1.73 standard deviations), then twice a bounded least-squares fit of the
+    axis (`fit_section`, radii kept) and one of the radii (`_radii`).
     """
     from .adjust import fit_section
 
@@ -97,11 +98,8 @@ def extremity_points(points: np.ndarray, fit: BodyFit, parent: str, joint: str) 
                                                  < (REACH[parent[:-2]] * length) ** 2))
     if len(near) == 0:
         return near
-    own = s.distance(points[near])
-    for name, o in fit.sections.items():
-        if name != parent:
-            near, own = near[own <= (m := o.distance(points[near]))], own[own <= m]
-    return near
+    d = np.stack([o.distance(points[near]) for o in fit.sections.values()], axis=1)
+    return near[d[:, list(fit.sections).index(parent)] <= d.min(axis=1)]
 
 
 def place_extremities(points: np.ndarray, fit: BodyFit) -> BodyFit:
