@@ -520,8 +520,8 @@ class SurfaceParams:
         "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     far_hand_spacing: float = field(default=0.0075, metadata={
-        "help": "hands are meshed as range images (far_view) on scans with a median spacing up to this; "
-                "coarser, around their fitted column: a range image bridges the fingers' gaps (0: never)",
+        "help": "hands are meshed as range images on scans with a median spacing up to this, else "
+                "around their column (a range image bridges the fingers' gaps; 0: never)",
         "unit": "m", "range": (0.0, None)})
     far_view: bool = field(default=True, metadata={
         "help": "far parts are meshed as their cameras' range images (Delaunay across each camera's "
