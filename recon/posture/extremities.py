@@ -78,8 +78,8 @@ def _radii(points: np.ndarray, shape: SectionShape) -> SectionShape:
     if len(col) < MIN_POINTS:
         return shape
     open_ = shape.replace(closed=(False, False))
-    fit = least_squares(lambda ab: open_.replace(radii=ab).coords(col)[0], shape.radii, loss="soft_l1",
-                        f_scale=0.005, bounds=(0.006, 0.3), max_nfev=30)
+    fit = least_squares(lambda ab: open_.replace(radii=ab).coords(col)[0], np.clip(shape.radii, 0.006, 0.3),
+                        loss="soft_l1", f_scale=0.005, bounds=(0.006, 0.3), max_nfev=30)
     tip = shape.length + shape.caps[1]        # the fingertips (toes) stay where they are
     cap = min(float(fit.x.min()), 0.4 * tip)
     return shape.replace(end=shape.start + (tip - cap) * shape.axis, radii=fit.x, caps=np.array([cap, cap]))
