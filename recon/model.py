@@ -235,6 +235,14 @@ ADJACENT = {
 }
 
 
+#: Hands and feet (beyond the paper's model, `recon.posture.extremities`): name -> (the section they
+#: continue and are scored as, the joint between them).
+EXTREMITIES = {
+    "hand_l": ("forearm_l", "wrist_l"), "hand_r": ("forearm_r", "wrist_r"),
+    "foot_l": ("lower_leg_l", "ankle_l"), "foot_r": ("lower_leg_r", "ankle_r"),
+}
+
+
 def adjacency_matrix() -> np.ndarray:
     """(11, 11) bool: True where two sections meet at a joint (symmetric, False on the diagonal)."""
     m = np.zeros((len(SECTIONS), len(SECTIONS)), dtype=bool)
@@ -262,6 +270,9 @@ class BodyFit:
         The fit before the fine adjustment on the points (for previews), if kept.
     times : dict of str to float
         Seconds spent in each stage of the fit (e.g. ``voxelize``, ``match``, ``fine``).
+    extremities : dict of str to SectionShape
+        Hands and feet placed past the wrists and ankles (`EXTREMITIES`,
+        `recon.posture.extremities.place_extremities`); empty in the paper's model.
     """
 
     sections: dict
@@ -270,6 +281,7 @@ class BodyFit:
     unfitted: tuple = ()
     coarse: "BodyFit | None" = None
     times: dict = field(default_factory=dict)
+    extremities: dict = field(default_factory=dict)
 
     def to_dict(self) -> dict:
         """JSON-ready: ``{"joints": {name: [x, y, z]}, "sections": {name: {...}}, ...}``."""
@@ -280,6 +292,8 @@ class BodyFit:
             "unfitted": list(self.unfitted),
             "times_s": dict(self.times),
         }
+        if self.extremities:
+            d["extremities"] = {k: s.to_dict() for k, s in self.extremities.items()}
         if self.coarse is not None:
             d["coarse"] = self.coarse.to_dict()
         return d
@@ -289,7 +303,8 @@ class BodyFit:
         R = np.asarray(R, dtype=np.float64)
         return replace(self, sections={k: s.moved(R, t) for k, s in self.sections.items()},
                        joints={k: R @ np.asarray(v, dtype=float) + t for k, v in self.joints.items()},
-                       coarse=self.coarse.moved(R, t) if self.coarse is not None else None)
+                       coarse=self.coarse.moved(R, t) if self.coarse is not None else None,
+                       extremities={k: s.moved(R, t) for k, s in self.extremities.items()})
 
     @classmethod
     def from_dict(cls, d: dict) -> "BodyFit":
@@ -300,4 +315,5 @@ class BodyFit:
             unfitted=tuple(d.get("unfitted", ())),
             coarse=cls.from_dict(d["coarse"]) if d.get("coarse") else None,
             times=dict(d.get("times_s", {})),
+            extremities={k: SectionShape.from_dict(k, v) for k, v in d.get("extremities", {}).items()},
         )

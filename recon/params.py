@@ -519,12 +519,9 @@ class SurfaceParams:
     far_max_edge: float = field(default=4.0, metadata={
         "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
-    far_past_joint: float = field(default=0.0, metadata={
-        "help": "forearm and lower-leg points this far past the fitted wrist or ankle are a far part's "
-                "(a hand, a foot; negative: only those beyond T_d)", "unit": "m", "range": (None, None)})
     far_hand_spacing: float = field(default=0.0075, metadata={
-        "help": "hands are meshed as range images (far parts past the wrist) on scans with a median "
-                "spacing up to this; a coarser scan bridges the fingers' gaps (0: never)",
+        "help": "hands are meshed as range images on scans with a median spacing up to this, else "
+                "around their column (a range image bridges the fingers' gaps; 0: never)",
         "unit": "m", "range": (0.0, None)})
     far_view: bool = field(default=True, metadata={
         "help": "far parts are meshed as their cameras' range images (Delaunay across each camera's "
@@ -926,6 +923,9 @@ class FitParams:
         metadata={"help": "body stature; 0 = estimate it from the cloud", "unit": "m", "range": (0, 3)})
     fit_seed: int = field(default=0,  # random subsampling seed
         metadata={"help": "seed of the random subsampling", "unit": "", "range": (0, None)})
+    extremities: bool = field(default=True,  # beyond the paper: hands and feet (recon.posture.extremities)
+        metadata={"help": "place hands and feet past the fitted wrists and ankles, cluster and mesh them as "
+                          "sections (False: the paper's 11 sections)", "unit": "", "range": (False, True)})
 
     def __post_init__(self):
         check_fields(self, ReconError)
@@ -970,12 +970,12 @@ PAPER = {
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
-    "far_charts": False, "far_view": False, "far_past_joint": -1.0, "far_hand_spacing": 0.0,
+    "far_charts": False, "far_view": False,
     "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0, "cover_max_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
-    "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0,
+    "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0, "extremities": False,
 }
 
 

@@ -280,9 +280,24 @@ def _estimate(points, params: ReconParams, view_dir=None) -> BodyFit:
     except ImportError:
         raise ReconError("posture estimation (recon.posture) is not available in this build; "
                          "pass a fitted model with fit= (or --fit FIT.json)") from None
-    if params.fit is None:
-        return estimate_posture(points, view_dir=view_dir)
-    return estimate_posture(points, params.fit, view_dir=view_dir)
+    fit = estimate_posture(points, view_dir=view_dir) if params.fit is None else \
+        estimate_posture(points, params.fit, view_dir=view_dir)
+    return _extremities(points, fit, params)
+
+
+def _extremities(points, fit: BodyFit, params: ReconParams, steps: str = "proposed") -> BodyFit:
+    """``fit`` with its hands and feet placed (`recon.posture.extremities`) when ``extremities`` is
+    on and it has none yet; without them when it is off (or for the simple baseline)."""
+    from dataclasses import replace
+
+    on = params.fit is not None and params.fit.extremities and steps != "simple"
+    if not on:
+        return replace(fit, extremities={}) if fit.extremities else fit
+    if fit.extremities or not fit.sections:
+        return fit
+    from .posture.extremities import place_extremities
+
+    return place_extremities(points, fit)
 
 
 def reconstruct(points, method: str = "proposed", params: ReconParams | None = None, *,
@@ -345,6 +360,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         times["fit"] = time.perf_counter() - t0
     elif not isinstance(fit, BodyFit):
         raise ReconError(f"fit must be a BodyFit, got {type(fit).__name__}")
+    fit = _extremities(p, fit, params, steps)
     if not fit.sections:
         raise ReconError("the fitted model has no sections: nothing to reconstruct")
 
@@ -363,22 +379,33 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     t0 = time.perf_counter()
     meshed, extra = member, []
     spacing = median_spacing(p, tree=tree)
+    ext = np.full(len(p), -1)   # the hand or foot of each point (beyond the paper), -1 for none
+    if fit.extremities and steps != "simple":
+        from .clustering.cluster import assign_extremities
+        from .model import EXTREMITIES
+
+        ext = assign_extremities(p, member, fit, params.cluster.t_d)
+        parent = np.array([SECTIONS.index(a) for a, _ in EXTREMITIES.values()])
+        member = member.copy()   # labelled as the section they continue, meshed on their own chart
+        member[np.flatnonzero(ext >= 0), parent[ext[ext >= 0]]] = True
+        meshed = member & (ext < 0)[:, None]
     if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
         from .clustering.cluster import section_widths, simple_clustering
 
-        far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1)
+        far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1) & (ext < 0)
         sp = params.surface
-        hands = spacing <= sp.far_hand_spacing   # a scan fine enough for a hand's fingers
-        if sp.far_charts and steps != "simple" and sp.far_past_joint >= 0:  # hands and feet
-            from .surface.complete import past_joints
-
-            far |= past_joints(p, member, fit, sp.far_past_joint, hands)
-        meshed = member & ~far[:, None]
+        meshed = member & ~far[:, None] & (ext < 0)[:, None]
         if sp.far_charts and steps != "simple":  # ... or on charts of their own
             from .surface.complete import far_charts
 
             extra = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link,
-                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree, hands)
+                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
+    if (ext >= 0).any():
+        from .surface.complete import extremity_charts
+
+        sp = params.surface
+        extra = extremity_charts(p, ext, fit, meshed, spacing, sp.far_join, sp.far_max_edge, tree,
+                                 spacing <= sp.far_hand_spacing) + extra
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)
@@ -387,7 +414,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         t0 = time.perf_counter()
         c = params.clean
-        # the far parts (hands, feet) are denoised with their sections, though meshed on their own charts
+        # hands, feet (labelled as their section) and far parts are denoised with their sections
         dn = denoise(p, member | meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
                      c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
                      c.denoise_share, c.denoise_error)

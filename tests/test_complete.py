@@ -1,6 +1,8 @@
 """Completion beyond the paper (recon.surface.complete, recon.surface.closed): hands and feet meshed, holes filled, a closed surface."""
 
+import json
 import warnings
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -8,8 +10,10 @@ import trimesh
 
 from bodyscan.benchmarks.metrics import is_watertight
 from bodyscan.recon import ReconParams, reconstruct
+from bodyscan.recon.clustering.cluster import assign_extremities
+from bodyscan.recon.posture.extremities import place_extremities
 from bodyscan.recon.surface.closed import grid_surface, radial_field, seen_air, seen_distance
-from bodyscan.recon.model import SECTIONS, SectionShape
+from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
 from views import front_rear_zbuffer
@@ -57,12 +61,45 @@ def outside(shapes, x):
     return np.min([s.coords(x)[0] for s in shapes], axis=0)
 
 
+def with_joints(fit):
+    """The capsule fit with the left wrist and ankle at its forearm's and lower leg's ends."""
+    return replace(fit, joints={**fit.joints, "wrist_l": fit.sections["forearm_l"].end,
+                                "ankle_l": fit.sections["lower_leg_l"].end})
+
+
+def test_the_fit_places_the_hand_and_the_foot_and_the_clustering_gives_them_their_points(with_hand_and_foot):
+    P, L, vd, fit, shapes = with_hand_and_foot
+    placed = place_extremities(P, with_joints(fit))
+    assert set(placed.extremities) == {"hand_l", "foot_l"}     # no right wrist or ankle in this fit
+    assert all(placed.sections[k] is fit.sections[k] for k in fit.sections)   # the paper's 11 untouched
+    for name, true in (("hand_l", shapes[-2]), ("foot_l", shapes[-1])):
+        got = placed.extremities[name]
+        assert abs(got.axis @ true.axis) > np.cos(np.radians(10))
+        tip = lambda s: s.end + s.caps[1] * s.axis   # noqa: E731
+        assert np.linalg.norm(tip(got) - tip(true)) < 0.03     # three pixels of the 10 mm scan
+        assert abs(got.radii.max() - true.radii.max()) < 0.01
+    back = BodyFit.from_dict(json.loads(json.dumps(placed.to_dict())))     # the fit file keeps them
+    assert np.allclose(back.extremities["foot_l"].end, placed.extremities["foot_l"].end)
+    old = placed.to_dict()
+    del old["extremities"]
+    assert BodyFit.from_dict(old).extremities == {}       # an old fit file has none
+    member = np.zeros((len(P), len(SECTIONS)), bool)
+    member[np.arange(len(P)), np.clip(L, 0, len(SECTIONS) - 1)] = L < len(SECTIONS)
+    ext = assign_extremities(P, member, placed)
+    for k, label, parent in ((0, HAND, FOREARM), (2, FOOT, LOWER_LEG)):   # hand_l, foot_l: EXTREMITIES' order
+        assert (ext[L == label] == k).mean() > 0.9
+        assert (L[(ext == k) & (L != label)] == parent).all()     # else only its section's end, past the joint
+
+
 def test_hand_and_foot_are_meshed_and_joined_without_air(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
+    fit = with_joints(fit)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        paper = reconstruct(P, "proposed", ReconParams.from_overrides({"far_charts": False}), view_dir=vd, fit=fit)
+        paper = reconstruct(P, "proposed", ReconParams.from_overrides({"far_charts": False, "extremities": False}),
+                            view_dir=vd, fit=fit)
         rec = reconstruct(P, "proposed", view_dir=vd, fit=fit)
+    assert set(rec.fit.extremities) == {"hand_l", "foot_l"} and not paper.fit.extremities
     ext = np.isin(L, [HAND, FOOT])
     used = np.zeros(len(P), bool)
     used[rec.faces.ravel()] = True

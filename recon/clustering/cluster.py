@@ -29,7 +29,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..geometry import unit
-from ..model import ADJACENT, SECTIONS, BodyFit, section_coords
+from ..model import ADJACENT, EXTREMITIES, SECTIONS, BodyFit, section_coords
 from ..params import ClusterParams
 
 NS = len(SECTIONS)
@@ -907,3 +907,37 @@ def cluster_points(points: np.ndarray, fit: BodyFit, method: str = "proposed",
     if params.adopt_unlabeled:
         member = adopt_unlabeled(member, points, radius, params.max_rounds, tree)
     return settle_multi(member, points, r, h, fit, params, tree=tree, radius=radius)
+
+
+def assign_extremities(points: np.ndarray, member: np.ndarray, fit: BodyFit, t_d: float = 0.30) -> np.ndarray:
+    """Which hand or foot of ``fit.extremities`` each point is on (beyond the paper).
+
+    A point past a wrist (ankle), along the forearm's (lower leg's) axis, that is the forearm's
+    or in no section, goes to the hand (foot) when its model surface is nearer than T_d times
+    the hand's width (the simple clustering's test).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    member : (n, 11) bool
+        Memberships (`cluster_points`).
+    fit : BodyFit
+        With ``extremities`` (`recon.posture.extremities.place_extremities`).
+    t_d : float
+
+    Returns
+    -------
+    (n,) int8
+        Index into `recon.model.EXTREMITIES` (its order), -1 for none.
+    """
+    out = np.full(len(points), -1, dtype=np.int8)
+    free = ~member.any(axis=1)
+    for k, (name, (parent, joint)) in enumerate(EXTREMITIES.items()):
+        shape = fit.extremities.get(name)
+        if shape is None or parent not in fit.sections or joint not in fit.joints:
+            continue
+        s = fit.sections[parent]
+        cand = np.flatnonzero((member[:, SECTIONS.index(parent)] | free) & (out < 0)
+                              & ((points - np.asarray(fit.joints[joint], dtype=float)) @ s.axis > 0))
+        out[cand[shape.distance(points[cand]) <= t_d * shape.width]] = k
+    return out

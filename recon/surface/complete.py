@@ -1,18 +1,26 @@
-"""Completion beyond the paper: every seen point in the surface (the far charts).
+"""Completion beyond the paper: every seen point in the surface (the hands', the feet's and the far
+charts).
 
-`far_charts`: the points that no fitted section explains (beyond T_d of every section: hands,
-feet, the points of a section listed unfitted; and the forearm and lower-leg points past the
-fitted wrist and ankle, `past_joints`, which the paper's model lengthens its columns over) are
-grouped into connected parts, and each part of at least ``far_min_points`` points gets a chart of
-its own, which also holds the meshed points within ``far_join`` spacings of the part, so that the
-part's surface joins its section's. With ``far_view`` the chart is the range image each camera
-took of the part, triangulated across its view (`recon.surface.mesh.view_surface`: a hand or a
-foot is a height field over its camera's image, whatever its shape); otherwise (the chart kept
-for `closed_surface`) an elliptic column along the part's principal axis (open at the end that
-joins the body, closed by a cap at the other), triangulated like a section
-(`recon.surface.mesh.section_surface`). Then the merge and the air rules as for any section; the
-faces carry the section whose axis comes nearest (a hand counts as its forearm, a foot as its
-lower leg). Smaller parts are outliers and stay out of the surface.
+`extremity_charts`: the hands and feet of the body model (`recon.posture.extremities`, placed past
+the fitted wrists and ankles; their points given by `recon.clustering.cluster.assign_extremities`)
+are meshed on charts of their own, joined to the forearm (lower leg) they continue, whose label
+their faces carry (a hand is scored as its forearm, a foot as its lower leg). With ``far_view``
+each is meshed as the range images its cameras took (`recon.surface.mesh.view_surface`, a height
+field per camera that cannot fold over the curled fingers or the arch), the rims between the
+images closed by its fitted column; a hand on a scan coarser than ``far_hand_spacing`` around its
+column, like a section (its range image joins the fingers across their gaps).
+
+`far_charts`: the points that no fitted section explains (beyond T_d of every section: the points
+of a section listed unfitted, a hand or a foot the model has none for) are grouped into connected
+parts, and each part of at least ``far_min_points`` points gets a chart of its own, which also
+holds the meshed points within ``far_join`` spacings of the part, so that the part's surface joins
+its section's. With ``far_view`` the chart is the range image each camera took of the part,
+triangulated across its view (`recon.surface.mesh.view_surface`: a height field over its camera's
+image, whatever its shape); otherwise (the chart kept for `closed_surface`) an elliptic column
+along the part's principal axis (open at the end that joins the body, closed by a cap at the
+other), triangulated like a section (`recon.surface.mesh.section_surface`). Then the merge and the
+air rules as for any section; the faces carry the section whose axis comes nearest. Smaller parts
+are outliers and stay out of the surface.
 
 The closed surface (the method ``proposed-closed``) is `recon.surface.closed`.
 """
@@ -55,44 +63,6 @@ def far_parts(points: np.ndarray, far: np.ndarray, link: float, min_points: int)
     count = np.bincount(lab)
     order = np.argsort(-count, kind="stable")
     return [idx[lab == c] for c in order if count[c] >= min_points]
-
-
-#: The limb sections whose fitted column goes on over a hand or a foot, and the joint that ends them.
-DISTAL = {"forearm_l": "wrist_l", "forearm_r": "wrist_r", "lower_leg_l": "ankle_l", "lower_leg_r": "ankle_r"}
-
-
-def past_joints(points: np.ndarray, member: np.ndarray, fit, margin: float = 0.0,
-                hands: bool = True) -> np.ndarray:
-    """(n,) bool: the points of a forearm or lower leg past its fitted wrist or ankle.
-
-    The paper's model has no hands and feet, so the fit lengthens a forearm over its hand (and a
-    lower leg's end cap takes the heel): their points lie within T_d of the section's column, and
-    a hand's fingers and a foot's arch fold over it. Past the joint they are a far part's points
-    (`far_charts`: meshed as their cameras saw them) and no longer the section's.
-
-    Parameters
-    ----------
-    points : (n, 3) float, metres
-    member : (n, 11) bool
-        Section memberships.
-    fit : BodyFit
-        Its sections and joints (``wrist_l``, ``ankle_l``, ...).
-    margin : float
-        Metres past the joint, along the section's axis.
-    hands : bool
-        Also the hands (False: the feet only; a hand's fingers and their gaps need a finer scan
-        than a foot).
-    """
-    out = np.zeros(len(points), dtype=bool)
-    for name, joint in DISTAL.items():
-        if not hands and name.startswith("forearm"):
-            continue
-        if name not in fit.sections or joint not in (fit.joints or {}):
-            continue
-        j = SECTIONS.index(name)
-        along = (points - np.asarray(fit.joints[joint], dtype=float)) @ fit.sections[name].axis
-        out |= member[:, j] & (along > margin)
-    return out
 
 
 def part_shape(part: np.ndarray, joined: np.ndarray, name: str) -> SectionShape:
@@ -142,7 +112,7 @@ def nearest_axis(part: np.ndarray, sections: dict) -> int:
 
 def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
                spacing: float, link: float = 4.0, join: float = 3.0, min_points: int = 5,
-               max_edge: float = 4.0, tree=None, hands: bool = True):
+               max_edge: float = 4.0, tree=None):
     """Charts for the points no fitted section explains (see the module docstring).
 
     Parameters
@@ -167,10 +137,6 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         few across its features: long triangles there span fingers and toes).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
-    hands : bool
-        False: the parts continuing a forearm (hands) are triangulated around their column
-        (``far_view`` off in their parameters): on a coarse scan a hand's range image bridges the
-        gaps between its fingers.
 
     Returns
     -------
@@ -188,16 +154,70 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     tree = cKDTree(points) if tree is None else tree
     for idx in far_parts(points, far, link * spacing, min_points):
         j = nearest_axis(points[idx], sections)
-        near = tree.query_ball_point(points[idx], join * spacing)
-        near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+        near = _joined(tree, points, idx, join * spacing)
         if not meshed[near].any():   # joined to no meshed point: not the body's (a fit off the cloud)
             continue
         near = near[meshed[near, j]]
         shape = part_shape(points[idx], points[near], SECTIONS[j])
+        jobs.append((j, np.union1d(idx, near), shape, {"max_edge_factor": max_edge}, idx))
+    return jobs
+
+
+def _joined(tree, points: np.ndarray, idx: np.ndarray, radius: float) -> np.ndarray:
+    """Indices of the points within ``radius`` (metres) of ``points[idx]``."""
+    near = tree.query_ball_point(points[idx], radius)
+    return np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+
+
+def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarray, spacing: float,
+                     join: float = 3.0, max_edge: float = 4.0, tree=None, hand_view: bool = True):
+    """Charts of the hands and feet of the body model (`recon.model.EXTREMITIES`).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    ext : (n,) int
+        Each point's extremity (`recon.clustering.cluster.assign_extremities`), -1 for none.
+    fit : BodyFit
+        With ``extremities``.
+    meshed : (n, 11) bool
+        Memberships of the points meshed on the sections' own charts.
+    spacing : float
+        Median point spacing, metres.
+    join : float
+        Spacings: the meshed points of its section within this of an extremity join its chart.
+    max_edge : float
+        Spacings: longer triangles are left out (as `far_charts`: a hand's or a foot's points are
+        few across its features, long triangles there span fingers and toes).
+    tree : scipy.spatial.cKDTree, optional
+    hand_view : bool
+        False: the hands are triangulated around their column (``far_view`` off in their
+        parameters): on a coarse scan a hand's range image bridges the gaps between its fingers.
+
+    Returns
+    -------
+    list of (int, (k,) int, SectionShape, dict, (k',) int)
+        As `far_charts`: the section the extremity is scored as, its points and the joined ones,
+        its fitted column (the rim chart of its range images), the surface parameter changes, its
+        own points.
+    """
+    from scipy.spatial import cKDTree
+
+    from ..model import EXTREMITIES
+
+    jobs = []
+    tree = cKDTree(points) if tree is None else tree
+    for k, (name, (parent, _)) in enumerate(EXTREMITIES.items()):
+        idx = np.flatnonzero(ext == k)
+        if len(idx) < 3:
+            continue
+        j = SECTIONS.index(parent)
+        near = _joined(tree, points, idx, join * spacing)
+        near = near[meshed[near, j]]
         change = {"max_edge_factor": max_edge}
-        if not hands and SECTIONS[j].startswith("forearm"):
+        if not hand_view and name.startswith("hand"):
             change["far_view"] = False     # a hand on a coarse scan: around its column
-        jobs.append((j, np.union1d(idx, near), shape, change, idx))
+        jobs.append((j, np.union1d(idx, near), fit.extremities[name], change, idx))
     return jobs
 
 

@@ -29,7 +29,8 @@ holes in convex surface, inside the body, stay as in the paper), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
 
-The parts no section's chart fits (hands, feet: `recon.surface.complete.far_charts`) are
+The hands and feet of the body model are charts like the sections' (`recon.surface.complete.
+extremity_charts`); the parts no section's chart fits (`recon.surface.complete.far_charts`) are
 triangulated as the range images their cameras took (`view_surface`: Delaunay across each
 camera's view, the rims between the images closed by their own chart's faces).
 """
