@@ -606,11 +606,15 @@ class CleanParams:
                 "moved by the mean of its 3 nearest fits (0 = a fit at every point)", "unit": "",
         "range": (0.0, None)})
     denoise_error: float = field(default=0.15, metadata={
-        "help": "denoising fits widen (past denoise_neighbours, within denoise_radius) until their "
+        "help": "denoising fits widen (past denoise_neighbours, within denoise_reach) until their "
                 "error from the measured noise is at most this many spacings (0 = off)",
         "unit": "", "range": (0.0, None)})
+    denoise_reach: float = field(default=0.012, metadata={
+        "help": "widened denoising fits (see denoise_error) take their points within this distance",
+        "unit": "m", "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
-        "help": "no point moves farther than this many robust scales", "unit": "", "range": (0.0, None)})
+        "help": "no point moves farther than this many robust scales (outlier_z where the noise "
+                "widened the fits)", "unit": "", "range": (0.0, None)})
     register_heads: bool = field(default=False, metadata={
         "help": "correct the rigid offset between scanner heads: ICP on their overlap, or for two "
                 "opposite parallel heads their common silhouette (needs the head of each point)",
@@ -628,6 +632,7 @@ class CleanParams:
         _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
         _check(self.denoise_error >= 0, "denoise_error", self.denoise_error, ">= 0 spacings")
         _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
+        _check(self.denoise_reach >= 0, "denoise_reach", self.denoise_reach, ">= 0 metres")
 
 
 def _check(ok, name, value, what):

@@ -417,7 +417,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         # hands, feet (labelled as their section) and far parts are denoised with their sections
         dn = denoise(p, member | meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
                      c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
-                     c.denoise_share, c.denoise_error)
+                     c.denoise_share, c.denoise_error, c.denoise_reach)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0

@@ -222,3 +222,16 @@ def test_fine_noisy_scan_gets_wider_fits():
            for e in (0.0, 0.15)]
     assert rms[1] < 0.8 * rms[0]
     assert rms[1] < 0.3 * sigma
+
+
+def test_widened_fits_stay_within_their_reach():
+    # a wrist-thin cylinder (15 mm radius), 2 mm pitch and noise: fits widened to the noise
+    # would reach 20 mm and flatten its curvature; held within 12 mm they come nearer the truth
+    sigma, pitch, radius = 0.002, 0.002, 0.015
+    p, vd, head, true = scanned_cylinder(sigma, pitch=pitch, radius=radius, height=0.2)
+    inner = (true[:, 2] > 0.03) & (true[:, 2] < 0.17)
+    member = np.ones((len(p), 1), bool)
+    rms = [np.sqrt(np.mean(radial_error(denoise(p, member, pitch, error=0.15, reach=r).points[inner], radius) ** 2))
+           for r in (0.02, 0.012)]
+    assert rms[1] < 0.9 * rms[0]
+    assert rms[1] < 0.3 * sigma
