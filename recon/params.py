@@ -879,6 +879,14 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
+    fit_min_agreement: float = field(default=0.70,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
+        metadata={"help": "under this fraction of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
+                                           # the surface it shows a camera, where that camera saw a point, confirmed
+                                           # by a point at its depth: the posture was not found
+                                           # (`recon.posture.seen`; chosen on tune62)
+    fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
+        metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
+                                           # this near in depth (in its pixel or the eight around; chosen)
     match_head_max_side: float = field(default=55.0,  # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
         metadata={"help": "the head's coarse axis leans at most this far sideways from the chest's", "unit": "deg", "range": (0, 180)})
                                            # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees

@@ -208,12 +208,13 @@ from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_t
 from ..model import BodyFit, SECTIONS
 from ..params import FitParams
 from .reach import reach_arms
+from .seen import confirmed_fraction, scan_views
 from .volume import voxel_size, voxelize
 
 __all__ = ["FitParams", "estimate_posture", "fit_section"]
 
 
-def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) -> BodyFit:
+def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, head=None) -> BodyFit:
     """Fit the body model to a cloud: volume matching, then fine adjustment (paper section 2).
 
     Parameters
@@ -222,8 +223,12 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
         The cloud (any posture, any facing direction about the vertical).
     params : FitParams, optional
     view_dir : (n, 3) float, optional
-        Per point direction towards its sensor (unused by the fit, accepted for symmetry with the
-        reader; front and back are read from the body's shape).
+        Per point direction towards its sensor: the fitted model is checked against what the
+        cameras saw (`recon.posture.seen`, `fit_min_agreement`); without it, it is not. Front and
+        back are read from the body's shape.
+    head : (n,) int, optional
+        Per point, the scanner head that measured it (needed for that check with perspective
+        heads; parallel heads are told apart by their view direction).
 
     Returns
     -------
@@ -242,10 +247,29 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None) 
         fit = _fit_facings(points, params)
     else:
         fit = _estimate(points, params)
+    if view_dir is not None and params.fit_min_agreement > 0:
+        _check_seen(fit, points, view_dir, head, params)
     if fit.unfitted:
         warnings.warn(f"sections not fitted (missing from the scan, or not placed with confidence): "
                       f"{', '.join(fit.unfitted)}", stacklevel=2)
     return fit
+
+
+def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None:
+    """`ReconError` when the cameras' view contradicts the fitted model: of the surface it shows
+    them where they saw points, under `fit_min_agreement` is confirmed by a point at its depth
+    (`recon.posture.seen`). A model placed wrongly inside the body's outline explains the points
+    about as well as a right one (the coverage check passes it), but shows the cameras surfaces
+    where they saw none, or saw them at other depths."""
+    vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
+    if not np.isfinite(vd).all():
+        raise ReconError("view_dir must be finite (n, 3) directions, one per point")
+    views = scan_views(points, vd, head, min_pixel=params.fit_agreement_tolerance / 3)
+    agree = confirmed_fraction(fit.sections, views, params.fit_agreement_tolerance)
+    if agree < params.fit_min_agreement:
+        raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
+                         f"the scan confirms only {100 * agree:.0f}% of the fitted model's surface "
+                         f"the cameras would see (a body scan: over {100 * params.fit_min_agreement:.0f}%)")
 
 
 def _fit_facings(points, params: FitParams) -> BodyFit:
