@@ -264,7 +264,10 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
     vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
     if not np.isfinite(vd).all():
         raise ReconError("view_dir must be finite (n, 3) directions, one per point")
-    views = scan_views(points, vd, head, min_pixel=params.fit_agreement_tolerance / 3)
+    # on at most `fit_max_points` of the points (a 2 mm scan's pixels of a centimetre hold many)
+    step = max(1, -(-len(points) // params.fit_max_points))
+    views = scan_views(points[::step], vd[::step], None if head is None else np.asarray(head)[::step],
+                       min_pixel=params.fit_agreement_tolerance / 3)
     agree = confirmed_fraction(fit.sections, views, params.fit_agreement_tolerance)
     if agree < params.fit_min_agreement:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
