@@ -171,7 +171,14 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    torso was misplaced), failed: the fit is made again from the next torso
    candidate (up to `match_alternatives`, turned by at least `match_alt_min_turn` or moved), and
    when none passes the cloud is refused (`ReconError`): a wrong coarse pose is never returned
-   silently as a fit.
+   silently as a fit. The points explained are one half of the test; the other is whether the
+   model is where the cameras saw it (`recon.posture.seen`, given the points' view directions): the
+   final fit, drawn from each head, shows it surfaces, and of those where the head saw a point, at
+   least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, or
+   the cloud is refused. A model placed wrongly inside the body's outline (a squat's trunk 20 cm
+   low, a body turned side-on fitted facing the cameras) explains the points nearly as well as a
+   right one, but shows the cameras surfaces where they looked through to others, or saw others in
+   front. A fit with left and right swapped shows them the same surfaces: this check cannot see it.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
    file format's); the sections reported in the `BodyFit` meet
