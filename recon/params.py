@@ -880,10 +880,10 @@ class FitParams:
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
     fit_min_agreement: float = field(default=0.70,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
-        metadata={"help": "under this fraction of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
+        metadata={"help": "less of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
                                            # the surface it shows a camera, where that camera saw a point, confirmed
                                            # by a point at its depth: the posture was not found
-                                           # (`recon.posture.seen`; chosen on tune62)
+                                           # (`recon.posture.seen`; chosen on tune62; the library's lowest is 0.74)
     fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
         metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
                                            # this near in depth (in its pixel or the eight around; chosen)
@@ -967,7 +967,7 @@ class FitParams:
 #: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
 #: points) only: no deeper inner triangles, no open joint ends, no fold, carving, view or
 #: concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
-#: size estimate, no alternatives. Kept, being steps without which nothing works, and the same
+#: size estimate, no alternatives, no check against the cameras' view. Kept, being steps without which nothing works, and the same
 #: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
 #: itself (``recon.posture.match``, whose voxel score is paper 2.3).
 PAPER = {
@@ -983,7 +983,7 @@ PAPER = {
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
-    "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0,
+    "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0, "fit_min_agreement": 0.0,
 }
 
 
