@@ -9,7 +9,7 @@ from bodyscan.recon import ReconError
 from bodyscan.recon.model import BodyFit, SectionShape
 from bodyscan.recon.params import FitParams
 from bodyscan.recon.posture.fit import _check_seen
-from bodyscan.recon.posture.seen import _surface, agreement, confirmed_fraction, disagreeing, scan_views
+from bodyscan.recon.posture.seen import _surface, agreement, confirmed_fraction, scan_views
 from views import front_rear_zbuffer
 
 TRUNK = SectionShape(name="chest", start=np.array([0.0, 0.0, 0.8]), end=np.array([0.0, 0.0, 1.4]),
@@ -40,7 +40,6 @@ def test_the_model_where_the_scan_has_it_is_confirmed(views):
         assert shown > 100, name                       # both cameras see both sections
         assert confirmed >= 0.95 * shown, (name, shown, confirmed)
     assert confirmed_fraction({"chest": TRUNK, "upper_arm_l": ARM}, views, 0.03) >= 0.95
-    assert disagreeing({"chest": TRUNK, "upper_arm_l": ARM}, views, 0.03, 0.5, 50) == ()
 
 
 def test_an_arm_moved_into_the_air_the_cameras_looked_through_is_contradicted(views):
@@ -49,7 +48,7 @@ def test_an_arm_moved_into_the_air_the_cameras_looked_through_is_contradicted(vi
     secs = {"chest": TRUNK, "upper_arm_l": moved}
     shown, confirmed = agreement(secs, views, 0.03)["upper_arm_l"]
     assert shown > 100 and confirmed <= 0.05 * shown
-    assert disagreeing(secs, views, 0.03, 0.5, 50) == ("upper_arm_l",)
+    assert confirmed_fraction(secs, views, 0.03) < confirmed_fraction({"chest": TRUNK, "upper_arm_l": ARM}, views, 0.03) - 0.03
     # the trunk behind it is hidden from the front camera by the model's own arm, not contradicted
     s, c = agreement(secs, views, 0.03)["chest"]
     assert c >= 0.95 * s

@@ -10,7 +10,7 @@ surface in front of it where the model has none, or saw its surface at another d
 camera saw nothing in (laser shadow, unseen sides) say nothing and are left out.
 
 `agreement` gives, per section, the surface it shows the cameras and how much of it the scan
-confirms; `disagreeing` names the sections the scan contradicts.
+confirms; `confirmed_fraction`, the whole model's (the fit's check, `fit_min_agreement`).
 """
 
 from __future__ import annotations
@@ -113,10 +113,3 @@ def confirmed_fraction(secs: dict, views: Views, tolerance: float) -> float:
     a = np.array(list(agreement(secs, views, tolerance).values())).reshape(-1, 2).sum(axis=0)
     return float(a[1] / a[0]) if a[0] else 1.0
 
-
-def disagreeing(secs: dict, views: Views, tolerance: float, min_agree: float, min_shown: int) -> tuple:
-    """Names of the sections of ``secs`` that the scan contradicts: of the surface they show the
-    cameras where the scan holds points (at least ``min_shown`` samples), under ``min_agree`` is
-    confirmed (`agreement`)."""
-    return tuple(n for n, (s, c) in agreement(secs, views, tolerance).items()
-                 if s >= min_shown and c < min_agree * s)
