@@ -162,25 +162,25 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k, noise_sigma=noise))
-    pts, gt = scan.points, scan.gt_section
+    pts, gt, vd = scan.points, scan.gt_section, scan.view_dir   # the view directions, as `reconstruct` gets them
     if "without-" in condition:
         # a partial body: the points of the named sections cut from the scan
         from bodyscan.recon.model import SECTIONS
 
         cut = re.split(r"_(?:noise|rot|turn)", condition.split("without-")[1])[0].split("+")
         keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
-        pts, gt = pts[keep], gt[keep]
+        pts, gt, vd = pts[keep], gt[keep], vd[keep]
     joints = body.joint_dict()
     if "rot" in condition:
         R = rot_z(float(condition.split("rot")[1].split("_")[0]))
-        pts = pts @ R.T
+        pts, vd = pts @ R.T, vd @ R.T
         joints = {n: R @ v for n, v in joints.items()}
     row = dict(body=body.name if hasattr(body, "name") else "?", condition=condition, points=len(pts))
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            fit = estimate_posture(pts, params)
+            fit = estimate_posture(pts, params, view_dir=vd)
     except ReconError as e:
         row.update(seconds=time.perf_counter() - t0, outcome="refused", message=str(e))
         return row

@@ -881,6 +881,14 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
+    fit_min_agreement: float = field(default=0.70,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
+        metadata={"help": "less of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
+                                           # the surface it shows a camera, where that camera saw a point, confirmed
+                                           # by a point at its depth: the posture was not found
+                                           # (`recon.posture.seen`; chosen on tune62; the library's lowest is 0.74)
+    fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
+        metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
+                                           # this near in depth (in its pixel or the eight around; chosen)
     match_head_max_side: float = field(default=55.0,  # 2.3(2): the head's coarse axis leans at most this far sideways (towards the
         metadata={"help": "the head's coarse axis leans at most this far sideways from the chest's", "unit": "deg", "range": (0, 180)})
                                            # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees
@@ -964,7 +972,7 @@ class FitParams:
 #: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
 #: points) only: no deeper inner triangles, no open joint ends, no fold, carving, view or
 #: concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
-#: size estimate, no alternatives. Kept, being steps without which nothing works, and the same
+#: size estimate, no alternatives, no check against the cameras' view. Kept, being steps without which nothing works, and the same
 #: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
 #: itself (``recon.posture.match``, whose voxel score is paper 2.3).
 PAPER = {
@@ -981,6 +989,7 @@ PAPER = {
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
     "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0, "extremities": False,
+    "fit_min_agreement": 0.0,
 }
 
 

@@ -266,22 +266,24 @@ def estimate_fit(points, params: ReconParams, view_dir=None, head=None) -> BodyF
     left out, heads registered); raises `ReconError` if unavailable."""
     p = check_points(points)
     vd = _check_view_dir(view_dir, len(p))
-    prep = prepare(p, params, vd, _check_head(head, len(p)))
-    return _estimate(prep.points[prep.keep], params, _subset(prep.view_dir, prep.keep))
+    hd = _check_head(head, len(p))
+    prep = prepare(p, params, vd, hd)
+    return _estimate(prep.points[prep.keep], params, _subset(prep.view_dir, prep.keep),
+                     None if hd is None else hd[prep.keep])
 
 
 def _subset(view_dir, keep):
     return view_dir[keep] if view_dir is not None and np.ndim(view_dir) == 2 else view_dir
 
 
-def _estimate(points, params: ReconParams, view_dir=None) -> BodyFit:
+def _estimate(points, params: ReconParams, view_dir=None, head=None) -> BodyFit:
     try:
         from .posture.fit import estimate_posture
     except ImportError:
         raise ReconError("posture estimation (recon.posture) is not available in this build; "
                          "pass a fitted model with fit= (or --fit FIT.json)") from None
-    fit = estimate_posture(points, view_dir=view_dir) if params.fit is None else \
-        estimate_posture(points, params.fit, view_dir=view_dir)
+    fit = estimate_posture(points, view_dir=view_dir, head=head) if params.fit is None else \
+        estimate_posture(points, params.fit, view_dir=view_dir, head=head)
     return _extremities(points, fit, params)
 
 
@@ -349,13 +351,14 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     vd_raw = _check_view_dir(view_dir, len(raw))
     times = {}
     t0 = time.perf_counter()
-    prep = prepare(raw, params, vd_raw, _check_head(head, len(raw)))
+    hd = _check_head(head, len(raw))
+    prep = prepare(raw, params, vd_raw, hd)
     keep = np.flatnonzero(prep.keep)
     p, vd = prep.points[keep], _subset(prep.view_dir, prep.keep)
     times["prepare"] = time.perf_counter() - t0
     if fit is None:
         t0 = time.perf_counter()
-        fit = _estimate(p, params, vd)
+        fit = _estimate(p, params, vd, None if hd is None else hd[keep])
         times.update({f"fit_{k}": float(v) for k, v in (fit.times or {}).items()})
         times["fit"] = time.perf_counter() - t0
     elif not isinstance(fit, BodyFit):

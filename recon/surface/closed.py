@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import perp
+from ..views import seen_air
 
 
 def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
@@ -416,85 +416,3 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
     vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
     lab[tuple(g.T)] = vsec[v[over]]
-
-
-def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
-    """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
-    at the body and depth increasing toward the camera, or None when its rays neither are parallel
-    nor meet in a centre (within ``spacing``)."""
-    a = view_dir.mean(axis=0)
-    a /= np.linalg.norm(a)
-    e1 = perp(a)
-    e2 = np.cross(a, e1)
-    if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
-        return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
-    # perspective: the centre nearest to every ray (p + t v)
-    P = np.eye(3)[None] - view_dir[:, :, None] * view_dir[:, None, :]
-    c = np.linalg.lstsq(P.sum(axis=0), np.einsum("nij,nj->i", P, points), rcond=None)[0]
-    off = c - points
-    if np.sqrt(max(float(np.mean(np.einsum("ni,nij,nj->n", off, P, off))), 0.0)) > spacing:
-        return None
-    dist = float(np.linalg.norm(off, axis=1).mean())
-
-    def project(x):
-        u = c - x
-        ua = u @ a
-        return dist * np.column_stack([u @ e1, u @ e2]) / ua[:, None], -np.linalg.norm(u, axis=1)
-    return project
-
-
-def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float,
-             background: int = 0) -> np.ndarray:
-    """(m,) how far (metres) each position ``at`` lies in front of the surface its camera saw: its
-    depth toward the camera beyond the nearest seen point of its pixel and the eight around it
-    (pixels of one ``spacing``); positive is air the camera looked through, -inf where no camera
-    saw a point along that line (unknown).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    view_dir : (n, 3) float
-        Unit directions toward the camera that saw each point.
-    head : (n,) int or None
-        The head of each point (None: the points grouped by their view direction when fewer than
-        16, else all from one camera).
-    at : (m, 3) float
-    spacing : float
-        Median point spacing, metres.
-    background : int
-        Pixels: a position that every head sees in its picture with no point within this many
-        pixels is air too (+inf): beside the silhouettes, where no camera saw anything (0 = off).
-    """
-    from scipy.ndimage import binary_dilation, maximum_filter
-
-    if head is None:   # parallel heads by their direction, else one perspective camera
-        _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
-        head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
-    out = np.full(len(at), -np.inf)
-    empty = np.full(len(at), background > 0)
-    for h in np.unique(head):
-        sel = np.flatnonzero(head == h)
-        project = _camera(points[sel], view_dir[sel], spacing)
-        if project is None or len(sel) < 10:
-            continue
-        uv, depth = project(points[sel])
-        o = uv.min(axis=0) - spacing
-        ij = np.floor((uv - o) / spacing).astype(np.int64)
-        shape = tuple(ij.max(axis=0) + 2)
-        z = np.full(shape, -np.inf)
-        np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
-        seen = np.isfinite(z)
-        z = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
-        xy, dx = project(at)
-        k = np.floor((xy - o) / spacing).astype(np.int64)
-        ok = ((k >= 0) & (k < np.array(shape))).all(axis=1)
-        air = np.full(len(at), -np.inf)
-        zk = z[k[ok, 0], k[ok, 1]]
-        air[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
-        out = np.maximum(out, air)
-        if background > 0:
-            bg = ~binary_dilation(seen, np.ones((3, 3), dtype=bool), iterations=background)
-            e = np.zeros(len(at), dtype=bool)
-            e[ok] = bg[k[ok, 0], k[ok, 1]]
-            empty &= e
-    return np.where(empty, np.inf, out)

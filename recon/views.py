@@ -1,0 +1,119 @@
+"""How the scanner's cameras saw a cloud: what lies in front of the surface a camera saw is air.
+
+A camera records, per pixel, the first surface along its line of sight; everything between the
+camera and that point is empty. `Views` holds one depth buffer per head from the points and
+their view directions (parallel or perspective heads); the returned function says how far any
+position lies in front of the seen surface of its pixel. Used by the closed surface (what a camera
+looked through is outside the body, `recon.surface.closed`) and by the posture fit's check of the
+fitted model against the scan (`recon.posture.seen`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .geometry import perp
+
+
+def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
+    """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
+    at the body and depth increasing toward the camera, or None when its rays neither are parallel
+    nor meet in a centre (within ``spacing``)."""
+    a = view_dir.mean(axis=0)
+    a /= np.linalg.norm(a)
+    e1 = perp(a)
+    e2 = np.cross(a, e1)
+    if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
+        return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
+    # perspective: the centre nearest to every ray (p + t v)
+    P = np.eye(3)[None] - view_dir[:, :, None] * view_dir[:, None, :]
+    c = np.linalg.lstsq(P.sum(axis=0), np.einsum("nij,nj->i", P, points), rcond=None)[0]
+    off = c - points
+    if np.sqrt(max(float(np.mean(np.einsum("ni,nij,nj->n", off, P, off))), 0.0)) > spacing:
+        return None
+    dist = float(np.linalg.norm(off, axis=1).mean())
+
+    def project(x):
+        u = c - x
+        ua = u @ a
+        return dist * np.column_stack([u @ e1, u @ e2]) / ua[:, None], -np.linalg.norm(u, axis=1)
+    return project
+
+
+class Views:
+    """The cameras' depth buffers of a cloud: per head, the depth (toward the camera) of the seen
+    surface in each pixel of one ``spacing``, from the points and their view directions.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    view_dir : (n, 3) float
+        Unit directions toward the camera that saw each point.
+    head : (n,) int or None
+        The head of each point (None: the points grouped by their view direction when fewer than
+        16, else all from one camera).
+    spacing : float
+        Median point spacing, metres: the pixel.
+    background : int
+        Pixels: `air` calls a position that every head sees in its picture with no point within
+        this many pixels air too (+inf): beside the silhouettes, where no camera saw anything (0 = off).
+    """
+
+    def __init__(self, points: np.ndarray, view_dir: np.ndarray, head, spacing: float, background: int = 0):
+        from scipy.ndimage import binary_dilation, maximum_filter
+
+        if head is None:   # parallel heads by their direction, else one perspective camera
+            _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
+            head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
+        self.spacing, self.background = float(spacing), int(background)
+        self.heads = []   # per head: project, origin (2,), shape, depth (raw), nearest of 3 x 3, background
+        for h in np.unique(head):
+            sel = np.flatnonzero(head == h)
+            project = _camera(points[sel], view_dir[sel], spacing)
+            if project is None or len(sel) < 10:
+                continue
+            uv, depth = project(points[sel])
+            o = uv.min(axis=0) - spacing
+            ij = np.floor((uv - o) / spacing).astype(np.int64)
+            shape = tuple(ij.max(axis=0) + 2)
+            z = np.full(shape, -np.inf)
+            np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
+            seen = np.isfinite(z)
+            near = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
+            bg = ~binary_dilation(seen, np.ones((3, 3), dtype=bool), iterations=background) if background > 0 else None
+            self.heads.append((project, o, shape, z, near, bg))
+
+    def pixels(self, i: int, at: np.ndarray):
+        """Head ``i``'s view of positions ``at`` (m, 3): pixel (m, 2) int, depth toward the camera
+        (m,), and (m,) bool inside its picture."""
+        project, o, shape = self.heads[i][:3]
+        xy, dx = project(np.asarray(at, dtype=np.float64).reshape(-1, 3))
+        k = np.floor((xy - o) / self.spacing).astype(np.int64)
+        return k, dx, ((k >= 0) & (k < np.array(shape))).all(axis=1)
+
+    def air(self, at: np.ndarray) -> np.ndarray:
+        """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
+        saw (its depth toward the camera beyond the nearest seen point of its pixel and the eight
+        around it); positive is air the camera looked through, -inf where no camera saw a point
+        along that line (unknown), +inf beside every head's silhouette (``background``)."""
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(at), -np.inf)
+        empty = np.full(len(at), self.background > 0)
+        for i, (_, _, _, _, near, bg) in enumerate(self.heads):
+            k, dx, ok = self.pixels(i, at)
+            a = np.full(len(at), -np.inf)
+            zk = near[k[ok, 0], k[ok, 1]]
+            a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
+            out = np.maximum(out, a)
+            if bg is not None:
+                e = np.zeros(len(at), dtype=bool)
+                e[ok] = bg[k[ok, 0], k[ok, 1]]
+                empty &= e
+        return np.where(empty, np.inf, out)
+
+
+def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float,
+             background: int = 0) -> np.ndarray:
+    """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
+    saw: `Views.air` of the cloud (parameters as there)."""
+    return Views(points, view_dir, head, spacing, background).air(at)
