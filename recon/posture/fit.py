@@ -183,8 +183,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    surfaces: this check cannot see it.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
-   file format's), placed off the sections' ends and axes where the rig's lie
-   (`recon.posture.bodymodel.JOINT_OFFSET`); the sections reported in the `BodyFit` meet
+   file format's); the sections reported in the `BodyFit` meet
    where the body file's section labels change, which is not always at a joint: the torso splits
    into waist and chest at `recon.posture.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
