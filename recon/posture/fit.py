@@ -335,12 +335,12 @@ def _estimate(points, params: FitParams, front=None) -> BodyFit:
 #: reach 12-18 cm in front of the ankle, the heel 3-5 cm behind it.
 SOLE, ANKLE = 0.03, (0.08, 0.12)
 
-#: The feet decide the fit's front and back when the soles lie on average at least this far (metres)
-#: in front of (or behind) the nearest ankle point; below it (two deep squats on tilted feet and three
-#: strides of the 62 tune bodies: 0-1.8 cm; the others 3-10 cm) they only turn the facing, and the
-#: fit reads front and back from its sections (chosen). Below ``FEET_NONE`` the feet say nothing (no
-#: feet in the scan): the cloud's third moment turns the facing.
-FEET_MIN, FEET_NONE = 0.02, 0.001
+#: The feet show front and back when the soles lie on average at least this far (metres) in front
+#: of (or behind) the nearest ankle point; below it (no feet in the scan; the stumps of lower legs cut
+#: from it: 1 cm; two deep squats on tilted feet and three strides of the 62 tune bodies: 0-1.8 cm;
+#: the others 3-10 cm) the cloud's third moment turns the facing and the fit reads front and back
+#: from its sections (chosen).
+FEET_MIN = 0.02
 
 
 def feet_forward(points) -> np.ndarray:
@@ -372,13 +372,15 @@ def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndar
     horizontal direction is +x (arms held forward at the shoulders turn it: 34-84 degrees off on 4
     of the 62 tune bodies; the match searches the torso's turn about the vertical anyway). Front
     and back: the feet point forward (`feet_forward`), turned to -y, the facing of the standard
-    body; where they say nothing (less than `FEET_NONE`: no feet in the scan), the third moment of
-    the whole cloud along y is made negative (limbs held forward, a squat's knees stick out in
-    front). The third moment alone turned strides round (a stride's legs split front and back): on
-    the 62 tune bodies at k = 1, 2, 3 and turned 90 degrees in the scanner, the front came within
-    90 degrees of the truth on 165 of 248 scans with it, 245 with the feet (missed: a deep squat
-    whose tilted feet say almost nothing, a stride, arms held forward). Both depend on the cloud's
-    shape only, so a cloud turned about the vertical (and moved sideways) comes to the same place.
+    body; where they say too little (less than `FEET_MIN`: no feet in the scan, or the stumps of
+    lower legs cut from it), the third moment of the whole cloud along y is made negative (limbs
+    held forward, a squat's knees stick out in front). The third moment alone turned strides round
+    (a stride's legs split front and back): on the 62 tune bodies at k = 1, 2, 3 and turned 90
+    degrees in the scanner, the front came within 90 degrees of the truth on 165 of 248 scans with
+    it, 237 with the feet (missed: three strides whose feet say too little, turned round by the
+    third moment, and arms held forward; there the fit reads its front itself). Both depend on the
+    cloud's shape only, so a cloud turned about the vertical (and moved sideways) comes to the same
+    place.
     Where the feet decide (`FEET_MIN`), the fit takes its front from them (`_fit_facings`);
     elsewhere it reads front and back from its own sections (`recon.posture.joints.front_sign`).
 
@@ -409,7 +411,7 @@ def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndar
     ax = vec[:, 1]                                   # widest direction
     fwd = np.array([-ax[1], ax[0]])                  # +y of the turned frame
     ahead = float(feet_forward(points) @ fwd)       # > 0: the feet point to +y
-    if abs(ahead) < FEET_NONE:
+    if abs(ahead) < FEET_MIN:
         ahead = float(np.mean(((points[:, :2] - c[:2]) @ fwd) ** 3))
     if ahead > 0:
         ax, fwd = -ax, -fwd
