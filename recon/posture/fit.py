@@ -256,7 +256,7 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
 
     Where the feet show the front (`feet_forward`, at least `FEET_MIN` along the facing), the fit
     takes its front from them, in every turn (`_finish`): the fit's own reading from its leg and
-    trunk sections (`recon.posture.joints.front_sign`) turned the left and right round on 6 of 62
+    trunk sections (`recon.posture.joints.front_sign`) turned the left and right round on 5 of 62
     tune bodies turned 90 degrees in the scanner (seen from their sides) and on one at k = 1.
 
     A fit is in doubt when it is refused, leaves at least `fit_facing_retry` sections unfitted
