@@ -922,11 +922,6 @@ class FitParams:
         metadata={"help": "this many sections unfitted: try the other facings too", "unit": "", "range": (0, 11)})
                                            # its way; a scan missing one limb is not fitted again, each try being a
                                            # chance to place the limb on points not its own; chosen)
-    fit_facing_margin: float = field(default=0.02,  # 2.1: when the fit found the body facing the other way, the reverse fit
-        metadata={"help": "the reverse fit is kept only when it explains at least this larger fraction of the points", "unit": "", "range": (0, 1)})
-                                           # (turned 180 degrees) is kept only when it explains at least this larger
-                                           # fraction of the points (two right fits of one scan differ by up to 0.13,
-                                           # two near-ties with one fit wrong by 0.002 and 0.011; chosen)
     fit_facing_band: float = field(default=0.70,  # 2.1: the facing is read from the points between this and
         metadata={"help": "the facing is read from the points between this and fit_facing_band_top of the height", "unit": "", "range": (0, 1)})
     fit_facing_band_top: float = field(default=0.85,  #   this fraction of the cloud's height (the shoulders), where the widest

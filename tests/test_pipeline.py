@@ -336,7 +336,7 @@ def test_estimated_posture_bridging_meets_the_issue_target(estimated):
 def test_estimated_posture_meets_the_issue_targets(estimated):
     """Issue 5, the pipeline as users run it (posture estimated), on every shipped posture: truth
     among the point's labels >= 95 % (measured 0.952 heavy_standing, 0.954 squat to 0.979 t_pose;
-    tall_walking 0.947 -> 0.976 since its reverse facing is fitted too, `fit_facing_margin`; squat
+    tall_walking 0.947 -> 0.976 since it is fitted in the facing its feet show, `feet_forward`; squat
     0.945 -> 0.954 since the flexed hips' plane, `hip_planes`)."""
     for name, r in estimated.items():
         assert r["proposed"]["accuracy"]["section_accuracy_any"] >= 0.95, name

@@ -4,13 +4,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
 
 0. Facing (not in the paper, whose subjects face the camera; `fit_facing`): the cloud is turned
    about the vertical to a facing read from its own shape (`facing_frame`: across the shoulders
-   along x, front mostly toward -y), fitted there, and the fit turned back, so that a scan turned
+   along x, the feet pointing to -y), fitted there, and the fit turned back, so that a scan turned
    about the vertical gets the same fit, turned (the searches below run over finite sets of
    directions on an axis-aligned voxel grid: without it, a scan turned 60 or 250 degrees came
-   out differently, 73 of 84 library runs meeting issue 4's targets, 2 wrong). When the fit found
-   the body facing the other way (front and back are the facing's least sure part), it is fitted
-   in the reverse facing too (turned 180 degrees), and the reverse fit kept when it explains at
-   least `fit_facing_margin` more of the points and lists the same sections unfitted. When a fit
+   out differently, 73 of 84 library runs meeting issue 4's targets, 2 wrong). Where the feet
+   show the front (`feet_forward`), the fit takes front and back from them (step 6). When a fit
    is refused, leaves `fit_facing_retry` sections unfitted or explains fewer than
    `fit_min_coverage` of the points, the cloud is fitted turned by 90, 180 and 270 degrees too, and
    the fit with fewest sections unfitted, then most points explained, is kept (`_fit_facings`).
@@ -131,7 +129,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    along the upper arms, rising with an arm raised above the horizontal (`recon.posture.adjust._move_shoulders`). A
    wrist lies a hand length before the fingertips; a hand resting on the thigh or hip, whose
    points went to those sections, is followed along the forearm's axis (`recon.posture.joints._fingertip`).
-6. Front and back, hence left and right, come from the data, never from the scanner: feet point
+6. Front and back, hence left and right, come from the data, never from the scanner: the feet
+   point forward from the ankles, read on the whole cloud before the fit (`feet_forward`, step 0).
+   Where the scan shows no feet that say so (legs cut from the scan, a deep squat on tilted
+   feet), the fitted sections vote (`recon.posture.joints.front_sign`): feet point
    forward from the shins, knees bend backward, hips bend forward. The foot is the lowest part of
    the leg chain (against the scanner's +z), not the fitted shin's end, which in a sparse scan
    falls short of the sole onto the calf (a calf bulges backwards: left and right came out swapped
@@ -286,20 +287,13 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
 
 def _fit_facings(points, params: FitParams) -> BodyFit:
     """The fit of the cloud turned to its own facing (`facing_frame`), turned back; made again in
-    the reverse facing when the fit found the body facing the other way, and in every turn of
-    360 / `fit_facing` degrees when it is in doubt. Every facing is read from the cloud's shape, so
-    a scan turned about the vertical gets the same fit, turned.
+    every turn of 360 / `fit_facing` degrees when it is in doubt. Every facing is read from the
+    cloud's shape, so a scan turned about the vertical gets the same fit, turned.
 
-    Front and back are the facing's least sure part (the sign of a third moment: a walker's stride
-    turns it round), and the match depends on where it starts; the fit reads them from the data
-    (`recon.posture.joints.front_sign`). When it found the body's left at -x of the facing, the cloud
-    is fitted turned by 180 degrees too, and that fit kept when it explains at least
-    `fit_facing_margin` more of the points (within `fit_coverage_distance`) and lists the same
-    sections unfitted. A section fitted in one facing and listed in the other is where one of the
-    two is wrong, and which one the points cannot tell: a limb missing from the scan placed on
-    points not its own (a T-pose without its left forearm: the reverse facing placed a "forearm"
-    52 cm from the wrist, explaining more points with the rest of its fit), or a seen limb lost;
-    the facing's own fit is kept.
+    Where the feet show the front (`feet_forward`, at least `FEET_MIN` along the facing), the fit
+    takes its front from them, in every turn (`_finish`): the fit's own reading from its leg and
+    trunk sections (`recon.posture.joints.front_sign`) turned the left and right round on 5 of 62
+    tune bodies turned 90 degrees in the scanner (seen from their sides) and on one at k = 1.
 
     A fit is in doubt when it is refused, leaves at least `fit_facing_retry` sections unfitted
     (more than one limb's worth: a fit that lost its way, rarely a scan missing that much), or its
@@ -308,51 +302,32 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
     30 degrees in the scanner, matched 17 cm low, passed that check and explained 0.58 here). Then
     the fit with fewest sections unfitted, then most points explained, of all turns is kept."""
     R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top)
+    front = np.array([-R0[1, 0], -R0[1, 1], 0.0])    # the facing's front (-y turned back)
+    sure = abs(float(feet_forward(points) @ front[:2])) >= FEET_MIN
     sample = points[::max(1, len(points) // params.fit_max_points + 1)]
     n = int(params.fit_facing)
-    fits, errors, tried = {}, [], set()
-
-    def attempt(i):
-        tried.add(i)
+    fits, errors = {}, []
+    for i in range(n):
         R = rotvec(np.array([0.0, 0.0, 2 * np.pi * i / n])) @ R0
         try:
             # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
             # (the volume's voxels and the searches would otherwise see different rounding)
-            turned = _estimate(np.round((points - c) @ R.T, 9), params)
+            turned = _estimate(np.round((points - c) @ R.T, 9), params, front=R @ front if sure else None)
         except ReconError as e:
             errors.append(e)
-            return None
+            continue
         fit = turned.moved(R.T, c)
         fits[i] = (-len(fit.unfitted), explained_fraction(sample, fit.sections, params.fit_coverage_distance), fit)
-        return fits[i] if -fits[i][0] < params.fit_facing_retry and fits[i][1] >= params.fit_min_coverage \
-            else None, _left_at(turned)
-
-    sure, left = attempt(0) or (None, 0.0)
-    if sure is not None and (left >= 0 or n % 2):
-        return sure[2]
-    if sure is not None:
-        other, _ = attempt(n // 2) or (None, 0.0)
-        if other is not None:
-            same = set(other[2].unfitted) == set(sure[2].unfitted)
-            return (other if same and other[1] > sure[1] + params.fit_facing_margin else sure)[2]
-    for i in range(n):
-        if i not in tried:
-            attempt(i)
+        if i == 0 and -fits[i][0] < params.fit_facing_retry and fits[i][1] >= params.fit_min_coverage:
+            return fit
     if not fits:
         raise errors[0]
     return max(fits.values(), key=lambda f: f[:2])[2]
 
 
-def _left_at(fit: BodyFit) -> float:
-    """Where the fit found the body's left along x: the summed x of its left-minus-right shoulder,
-    hip, elbow and knee joints (positive: the body faces -y, as `facing_frame` turns it)."""
-    j = fit.joints
-    return float(sum(j[a + "_l"][0] - j[a + "_r"][0] for a in ("shoulder", "hip", "elbow", "knee")
-                     if a + "_l" in j and a + "_r" in j))
-
-
-def _estimate(points, params: FitParams) -> BodyFit:
-    """`estimate_posture` on checked points, as they lie."""
+def _estimate(points, params: FitParams, front=None) -> BodyFit:
+    """`estimate_posture` on checked points, as they lie; ``front`` (3,): where the body faces, when
+    known (None: read by the fit, `recon.posture.joints.front_sign`)."""
     times = {}
     t0 = time.perf_counter()
     rng = np.random.default_rng(params.fit_seed)
@@ -379,7 +354,7 @@ def _estimate(points, params: FitParams) -> BodyFit:
     first = None
     for pose in poses:
         try:
-            fit, unfitted = _finish(work, pose, params)
+            fit, unfitted = _finish(work, pose, params, front)
             break
         except ReconError as e:
             first = first or e
@@ -390,16 +365,60 @@ def _estimate(points, params: FitParams) -> BodyFit:
     return fit
 
 
+#: The feet, read at the bottom of the cloud (`feet_forward`), metres above its lowest point: the
+#: soles and toes lie below ``SOLE``, the ankles (the lower shins) between ``ANKLE``; an adult's
+#: ankle joint is 7-8 cm above the sole (Winter: 0.043 statures), a child's 4-5 cm. The toes
+#: reach 12-18 cm in front of the ankle, the heel 3-5 cm behind it.
+SOLE, ANKLE = 0.03, (0.08, 0.12)
+
+#: The feet show front and back when the soles lie on average at least this far (metres) in front
+#: of (or behind) the nearest ankle point; below it (no feet in the scan; the stumps of lower legs cut
+#: from it: 1 cm; two deep squats on tilted feet and three strides of the 62 tune bodies: 0-1.8 cm;
+#: the others 3-10 cm) the cloud's third moment turns the facing and the fit reads front and back
+#: from its sections (chosen).
+FEET_MIN = 0.02
+
+
+def feet_forward(points) -> np.ndarray:
+    """(2,) where the feet point, horizontally: the mean offset, metres, of the points at the soles
+    (within `SOLE` of the cloud's lowest point) from the nearest point at the ankles (`ANKLE` above
+    it; at most 0.3 m away, else not counted); zero when the scan shows fewer than 10 of either.
+
+    A foot reaches far in front of its ankle (the toes) and little behind it (the heel), so the
+    soles' offsets point forward on average whatever the legs do: a stride splits them front and
+    back, a squat or a seat bends them, a body turned in the scanner is seen from its sides; the
+    feet still point forward from their ankles (the nearest ankle point is the foot's own)."""
+    from scipy.spatial import cKDTree
+
+    z = points[:, 2] - points[:, 2].min()
+    sole = points[z < SOLE, :2]
+    ankle = points[(z > ANKLE[0]) & (z < ANKLE[1]), :2]
+    if len(sole) < 10 or len(ankle) < 10:
+        return np.zeros(2)
+    d, i = cKDTree(ankle).query(sole, distance_upper_bound=0.3)
+    ok = np.isfinite(d)
+    return (sole[ok] - ankle[i[ok]]).mean(axis=0) if ok.sum() >= 10 else np.zeros(2)
+
+
 def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
-    """The turn about the vertical that brings a body to a facing read from its own shape.
+    """The turn about the vertical that brings a body to the facing read from its own shape.
 
     Across the shoulders is a body's widest horizontal spread in nearly every posture: the points
     between ``band`` and ``top`` of the cloud's height are turned so that their principal
-    horizontal direction is +x, and so that the third moment of the whole cloud along y is
-    negative (limbs held forward, feet, a bent knee's thigh stick out in front: the subject then
-    mostly faces -y, the facing of the standard body; the fit reads front and back from the points
-    anyway). Both depend on the cloud's shape only, so a cloud turned about the vertical (and moved
-    sideways) comes to the same place.
+    horizontal direction is +x (arms held forward at the shoulders turn it: 34-84 degrees off on 4
+    of the 62 tune bodies; the match searches the torso's turn about the vertical anyway). Front
+    and back: the feet point forward (`feet_forward`), turned to -y, the facing of the standard
+    body; where they say too little (less than `FEET_MIN`: no feet in the scan, or the stumps of
+    lower legs cut from it), the third moment of the whole cloud along y is made negative (limbs
+    held forward, a squat's knees stick out in front). The third moment alone turned strides round
+    (a stride's legs split front and back): on the 62 tune bodies at k = 1, 2, 3 and turned 90
+    degrees in the scanner, the front came within 90 degrees of the truth on 165 of 248 scans with
+    it, 237 with the feet (missed: three strides whose feet say too little, turned round by the
+    third moment, and arms held forward; there the fit reads its front itself). Both depend on the
+    cloud's shape only, so a cloud turned about the vertical (and moved sideways) comes to the same
+    place.
+    Where the feet decide (`FEET_MIN`), the fit takes its front from them (`_fit_facings`);
+    elsewhere it reads front and back from its own sections (`recon.posture.joints.front_sign`).
 
     Parameters
     ----------
@@ -427,15 +446,19 @@ def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndar
     _, vec = np.linalg.eigh(xy.T @ xy)
     ax = vec[:, 1]                                   # widest direction
     fwd = np.array([-ax[1], ax[0]])                  # +y of the turned frame
-    if np.mean(((points[:, :2] - c[:2]) @ fwd) ** 3) > 0:
+    ahead = float(feet_forward(points) @ fwd)       # > 0: the feet point to +y
+    if abs(ahead) < FEET_MIN:
+        ahead = float(np.mean(((points[:, :2] - c[:2]) @ fwd) ** 3))
+    if ahead > 0:
         ax, fwd = -ax, -fwd
     R = np.array([[ax[0], ax[1], 0.0], [fwd[0], fwd[1], 0.0], [0.0, 0.0, 1.0]])
     return R, c
 
 
-def _finish(work, pose: Pose, params: FitParams):
-    """Fine adjustment, front and back, checks and joints of one coarse pose: (BodyFit, unfitted);
-    `ReconError` when the result is not a body (too few sections, too few points explained)."""
+def _finish(work, pose: Pose, params: FitParams, front=None):
+    """Fine adjustment, front and back (from ``front`` (3,), where the body faces, when given),
+    checks and joints of one coarse pose: (BodyFit, unfitted); `ReconError` when the result is not a
+    body (too few sections, too few points explained)."""
     secs, resid, counts = fine_adjust(work, pose, params)
     secs = anchor_on_head_top(secs, pose.body, params)
     secs, resid, counts, researched = research_forearms(work, secs, resid, counts, pose.body, params)
@@ -461,7 +484,8 @@ def _finish(work, pose: Pose, params: FitParams):
 
     missing = {n for n in secs if kind_of(n) in ("thigh", "lower_leg") and unseen(n)}
     missing |= {dist for prox, dist, *_ in LIMBS if prox in missing}
-    sign = front_sign(work, {k: v for k, v in secs.items() if k not in missing}, pose.R)
+    sign = front_sign(work, {k: v for k, v in secs.items() if k not in missing}, pose.R) if front is None \
+        else (1.0 if pose.R[:, 1] @ front < 0 else -1.0)
     if sign < 0:
         secs = {swap_sides(k): v.replace(name=swap_sides(k)) for k, v in secs.items()}
         resid = {swap_sides(k): v for k, v in resid.items()}
