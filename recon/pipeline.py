@@ -448,7 +448,6 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         t0 = time.perf_counter()
         sp = params.surface
-        hd = _check_head(head, len(raw))
         view = None if vd is None else (np.broadcast_to(vd, p.shape), None if hd is None else hd[keep])
         solids = [(j, np.flatnonzero(meshed[:, j]), fit.sections[name]) for j, name in enumerate(SECTIONS)
                   if name in fit.sections and name not in skipped] + list(extra)

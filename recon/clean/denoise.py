@@ -30,7 +30,7 @@ TUKEY = 4.685
 #: Fewest neighbours of a fit, whatever its radius (6 coefficients and some to spare).
 MIN_FIT = 10
 #: Query points fitted at a time, for 40 neighbours (speed only: a chunk's monomials, about
-#: 120 bytes per neighbour, stay near the cache; 20000 was 17 % slower with 113 neighbours).
+#: 120 bytes per neighbour, stay near the cache).
 CHUNK = 2500
 #: Queries whose unweighted fits give the residual scale, at most (a seeded sample).
 SAMPLE = 5000

@@ -17,6 +17,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from .bodymodel import LIMBS
 from ..model import EXTREMITIES, BodyFit, SectionShape
 
 #: How far past its joint a hand (foot) reaches, as a multiple of the forearm's (lower leg's)
@@ -91,7 +92,7 @@ def extremity_points(points: np.ndarray, fit: BodyFit, parent: str, joint: str) 
     parent's model than to any other fitted section's."""
     s = fit.sections[parent]
     j = np.asarray(fit.joints[joint], dtype=float)
-    prox = {"forearm": "elbow", "lower_leg": "knee"}[parent[:-2]] + parent[-2:]
+    prox = next(middle for _, dist, _, middle, _ in LIMBS if dist == parent)   # elbow, knee
     length = float(np.linalg.norm(j - fit.joints[prox])) if prox in fit.joints else s.length
     rel = points - j
     near = np.flatnonzero((rel @ s.axis > 0) & (np.einsum("ij,ij->i", rel, rel)

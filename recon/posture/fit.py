@@ -178,9 +178,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, or
    the cloud is refused. A model placed wrongly inside the body's outline explains the points
    nearly as well as a right one, but shows the cameras surfaces where they looked through to
-   others, or saw others in front (tune bodies: a squat with pelvis, hips and arms 16-21 cm off
-   showed 0.68 confirmed; a side-on body with hands on hips, every limb's joints off, 0.51; the
-   library's 84 runs 0.74 and more). A fit with left and right swapped shows the cameras the same
+   others, or saw others in front. A fit with left and right swapped shows the cameras the same
    surfaces: this check cannot see it.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
@@ -292,18 +290,19 @@ def _fit_facings(points, params: FitParams) -> BodyFit:
 
     Where the feet show the front (`feet_forward`, at least `FEET_MIN` along the facing), the fit
     takes its front from them, in every turn (`_finish`): the fit's own reading from its leg and
-    trunk sections (`recon.posture.joints.front_sign`) turned the left and right round on 5 of 62
-    tune bodies turned 90 degrees in the scanner (seen from their sides) and on one at k = 1.
+    trunk sections (`recon.posture.joints.front_sign`) can turn left and right round, most often
+    on a body seen from its sides.
 
     A fit is in doubt when it is refused, leaves at least `fit_facing_retry` sections unfitted
     (more than one limb's worth: a fit that lost its way, rarely a scan missing that much), or its
     sections explain fewer than `fit_min_coverage` of the points (the check of `_finish` counts
-    the sections before they are split at the joints, this the reported ones: a heavy body turned
-    30 degrees in the scanner, matched 17 cm low, passed that check and explained 0.58 here). Then
+    the sections before they are split at the joints, this the reported ones: a body matched low
+    can pass that check and fail this one). Then
     the fit with fewest sections unfitted, then most points explained, of all turns is kept."""
-    R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top)
+    feet = feet_forward(points)
+    R0, c = facing_frame(points, params.fit_facing_band, params.fit_facing_band_top, feet)
     front = np.array([-R0[1, 0], -R0[1, 1], 0.0])    # the facing's front (-y turned back)
-    sure = abs(float(feet_forward(points) @ front[:2])) >= FEET_MIN
+    sure = abs(float(feet @ front[:2])) >= FEET_MIN
     sample = points[::max(1, len(points) // params.fit_max_points + 1)]
     n = int(params.fit_facing)
     fits, errors = {}, []
@@ -372,10 +371,9 @@ def _estimate(points, params: FitParams, front=None) -> BodyFit:
 SOLE, ANKLE = 0.03, (0.08, 0.12)
 
 #: The feet show front and back when the soles lie on average at least this far (metres) in front
-#: of (or behind) the nearest ankle point; below it (no feet in the scan; the stumps of lower legs cut
-#: from it: 1 cm; two deep squats on tilted feet and three strides of the 62 tune bodies: 0-1.8 cm;
-#: the others 3-10 cm) the cloud's third moment turns the facing and the fit reads front and back
-#: from its sections (chosen).
+#: of (or behind) the nearest ankle point (feet seen whole: 3-10 cm; the stumps of lower legs cut
+#: from the scan, deep squats on tilted feet: under 2 cm); below it the cloud's third moment turns
+#: the facing and the fit reads front and back from its sections.
 FEET_MIN = 0.02
 
 
@@ -400,25 +398,21 @@ def feet_forward(points) -> np.ndarray:
     return (sole[ok] - ankle[i[ok]]).mean(axis=0) if ok.sum() >= 10 else np.zeros(2)
 
 
-def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndarray, np.ndarray]:
+def facing_frame(points, band: float = 0.70, top: float = 0.85, feet=None) -> tuple[np.ndarray, np.ndarray]:
     """The turn about the vertical that brings a body to the facing read from its own shape.
 
     Across the shoulders is a body's widest horizontal spread in nearly every posture: the points
     between ``band`` and ``top`` of the cloud's height are turned so that their principal
-    horizontal direction is +x (arms held forward at the shoulders turn it: 34-84 degrees off on 4
-    of the 62 tune bodies; the match searches the torso's turn about the vertical anyway). Front
-    and back: the feet point forward (`feet_forward`), turned to -y, the facing of the standard
-    body; where they say too little (less than `FEET_MIN`: no feet in the scan, or the stumps of
-    lower legs cut from it), the third moment of the whole cloud along y is made negative (limbs
-    held forward, a squat's knees stick out in front). The third moment alone turned strides round
-    (a stride's legs split front and back): on the 62 tune bodies at k = 1, 2, 3 and turned 90
-    degrees in the scanner, the front came within 90 degrees of the truth on 165 of 248 scans with
-    it, 237 with the feet (missed: three strides whose feet say too little, turned round by the
-    third moment, and arms held forward; there the fit reads its front itself). Both depend on the
-    cloud's shape only, so a cloud turned about the vertical (and moved sideways) comes to the same
-    place.
-    Where the feet decide (`FEET_MIN`), the fit takes its front from them (`_fit_facings`);
-    elsewhere it reads front and back from its own sections (`recon.posture.joints.front_sign`).
+    horizontal direction is +x (arms held forward at the shoulders can turn it; the match searches
+    the torso's turn about the vertical anyway). Front and back: the feet point forward
+    (`feet_forward`), turned to -y, the facing of the standard body; where they say too little
+    (less than `FEET_MIN`: no feet in the scan, or the stumps of lower legs cut from it), the third
+    moment of the whole cloud along y is made negative (limbs held forward, a squat's knees stick
+    out in front; alone, it turns strides round, whose legs split front and back). Both depend on
+    the cloud's shape only, so a cloud turned about the vertical (and moved sideways) comes to the
+    same place. Where the feet decide (`FEET_MIN`), the fit takes its front from them
+    (`_fit_facings`); elsewhere it reads front and back from its own sections
+    (`recon.posture.joints.front_sign`).
 
     Parameters
     ----------
@@ -426,6 +420,8 @@ def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndar
     band, top : float
         Fractions of the cloud's height bounding the slab read (0 <= band < top <= 1); fewer than
         10 points there: the whole cloud is read.
+    feet : (2,) float, optional
+        `feet_forward` of ``points``, if already measured.
 
     Returns
     -------
@@ -446,7 +442,7 @@ def facing_frame(points, band: float = 0.70, top: float = 0.85) -> tuple[np.ndar
     _, vec = np.linalg.eigh(xy.T @ xy)
     ax = vec[:, 1]                                   # widest direction
     fwd = np.array([-ax[1], ax[0]])                  # +y of the turned frame
-    ahead = float(feet_forward(points) @ fwd)       # > 0: the feet point to +y
+    ahead = float((feet_forward(points) if feet is None else feet) @ fwd)   # > 0: the feet point to +y
     if abs(ahead) < FEET_MIN:
         ahead = float(np.mean(((points[:, :2] - c[:2]) @ fwd) ** 3))
     if ahead > 0:
