@@ -208,10 +208,33 @@ def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
         c = np.asarray(camera)
         expect = (c[1] / (c[1] - at[0, 1]) - 1) * np.linalg.norm(at[0] - c)
     assert abs(air[0] - expect) < 0.002 and air[1] < -0.025 and (air[2:] == -np.inf).all()
-    # with the silhouettes: the hole's middle, two pixels from any point, is air; beside the
-    # picture, still unknown
-    air = seen_air(pts, vd, None, at, 0.005, background=1)
-    assert abs(air[0] - expect) < 0.002 and air[2] == -np.inf and air[3] == np.inf
+
+
+@pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
+def test_beside_is_the_distance_to_the_silhouette_with_its_gaps_closed(camera):
+    """The same wall (5 mm grid, a 3 cm hole whose nearest points are 2 cm from its middle):
+    `Views.beside` is 2 cm in the hole's middle (the hole stays open when the closing is narrower
+    than it, and closes when wider), 0 between neighbouring points once their gaps are closed, and
+    at least the picture's margin far beside the wall."""
+    from bodyscan.recon.views import Views
+
+    g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
+    g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
+    pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
+    if camera is None:
+        vd = np.tile([0.0, -1.0, 0.0], (len(pts), 1))
+    else:
+        vd = np.asarray(camera) - pts
+        vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    cams = Views(pts, vd, None, 0.005)
+    at = np.array([[-0.05, -0.01, -0.05], [0.0025, -0.03, 0.0025], [0.5, -0.03, 0.0], [0.0, 0.05, 0.0]])
+    scale = 1.0 if camera is None else 2.0 / 1.97     # the perspective image is at the wall's distance
+    open_ = cams.beside(at)
+    assert abs(open_[0] - 0.02 * scale) < 0.0015 and 0.0015 < open_[1] < 0.005
+    assert open_[2] >= cams.PAD * 0.005 and open_[3] < 0.004     # far beside; behind the wall: within a gap
+    closed = cams.beside(at, close=0.005)
+    assert abs(closed[0] - open_[0]) < 0.0015 and closed[1] == 0 and closed[3] == 0
+    assert cams.beside(at, close=0.03)[0] == 0
 
 
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
