@@ -15,6 +15,11 @@ import numpy as np
 
 from .geometry import perp
 
+#: Percentile of a head's gaps between neighbouring points (in its image) that `Views.beside`'s
+#: closing fills at least: a scan sampled more coarsely across than along its rows keeps no holes
+#: in its silhouettes.
+GAP_Q = 95.0
+
 
 def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
     """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
@@ -115,7 +120,8 @@ class Views:
         silhouettes of every head: per head, the distance from its image to the head's silhouette,
         the least over the heads (0 within a silhouette). A head's silhouette is the image of the
         points it saw, closed (a morphological closing by a disc of radius ``close``, metres: the
-        gaps between neighbouring points filled, its outline kept), in sub-pixels of ``step``
+        gaps between neighbouring points filled, its outline kept; at least the head's ``GAP_Q``-th
+        percentile gap between neighbouring points), in sub-pixels of ``step``
         metres (default a quarter pixel); positions more than ``PAD`` pixels beside the points
         are at least that far."""
         from scipy.ndimage import distance_transform_edt
@@ -132,7 +138,11 @@ class Views:
                 occ = np.zeros(shape, dtype=bool)
                 occ[ij[:, 0], ij[:, 1]] = True
                 if close > 0:   # closing: dilate by close, then erode by close
-                    occ = distance_transform_edt(distance_transform_edt(~occ) * step <= close) * step > close
+                    r = close
+                    if GAP_Q > 0 and len(uv) > 2:    # at least the head's own gaps between points
+                        from scipy.spatial import cKDTree
+                        r = max(r, float(np.percentile(cKDTree(uv).query(uv, 2)[0][:, 1], GAP_Q)))
+                    occ = distance_transform_edt(distance_transform_edt(~occ) * step <= r) * step > r
                 self._nearest[i] = ((close, step), o, distance_transform_edt(~occ) * step)
             _, o, dist = self._nearest[i]
             k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)

@@ -400,7 +400,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
             air = cams.air(at)
             cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
         if background > 0:    # beside every head's silhouette
-            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing))
+            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
         F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
