@@ -544,10 +544,10 @@ class SurfaceParams:
         "help": "proposed-closed: what lies this far in front of the surface a camera saw, along "
                 "its line of sight, is air and stays out of the closed surface (0 = off)",
         "unit": "spacings", "range": (0.0, None)})
-    close_background: int = field(default=1, metadata={
-        "help": "proposed-closed: what every head sees with no point within this many pixels (each "
-                "one spacing), beside the silhouettes, is air (0 = off)",
-        "unit": "", "range": (0, None)})
+    close_background: float = field(default=0.5, metadata={
+        "help": "proposed-closed: what every head sees farther than this beside its silhouette (its "
+                "points' image, the gaps between them closed) is air (0 = off)",
+        "unit": "spacings", "range": (0.0, None)})
     far_min_points: int = field(default=5, metadata={
         "help": "far parts with fewer points are outliers, left out of the surface", "unit": "",
         "range": (3, None)})

@@ -3,9 +3,10 @@
 A camera records, per pixel, the first surface along its line of sight; everything between the
 camera and that point is empty. `Views` holds one depth buffer per head from the points and
 their view directions (parallel or perspective heads); the returned function says how far any
-position lies in front of the seen surface of its pixel. Used by the closed surface (what a camera
-looked through is outside the body, `recon.surface.closed`) and by the posture fit's check of the
-fitted model against the scan (`recon.posture.seen`).
+position lies in front of the seen surface of its pixel (`Views.air`), and how far beside the
+silhouettes of every head (`Views.beside`). Used by the closed surface (what a camera looked through
+or past is outside the body, `recon.surface.closed`) and by the posture fit's check of the fitted
+model against the scan (`recon.posture.seen`).
 """
 
 from __future__ import annotations
@@ -13,6 +14,11 @@ from __future__ import annotations
 import numpy as np
 
 from .geometry import perp
+
+#: Percentile of a head's gaps between neighbouring points (in its image) that `Views.beside`'s
+#: closing fills at least: a scan sampled more coarsely across than along its rows keeps no holes
+#: in its silhouettes.
+GAP_Q = 95.0
 
 
 def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
@@ -54,19 +60,17 @@ class Views:
         16, else all from one camera).
     spacing : float
         Median point spacing, metres: the pixel.
-    background : int
-        Pixels: `air` calls a position that every head sees in its picture with no point within
-        this many pixels air too (+inf): beside the silhouettes, where no camera saw anything (0 = off).
     """
 
-    def __init__(self, points: np.ndarray, view_dir: np.ndarray, head, spacing: float, background: int = 0):
-        from scipy.ndimage import binary_dilation, maximum_filter
+    def __init__(self, points: np.ndarray, view_dir: np.ndarray, head, spacing: float):
+        from scipy.ndimage import maximum_filter
 
         if head is None:   # parallel heads by their direction, else one perspective camera
             _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
             head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
-        self.spacing, self.background = float(spacing), int(background)
-        self.heads = []   # per head: project, origin (2,), shape, depth (raw), nearest of 3 x 3, background
+        self.spacing = float(spacing)
+        self.heads = []   # per head: project, origin (2,), shape, depth (raw), nearest of 3 x 3
+        self._uv = []     # per head: its points' image coordinates (k, 2)
         for h in np.unique(head):
             sel = np.flatnonzero(head == h)
             project = _camera(points[sel], view_dir[sel], spacing)
@@ -80,8 +84,9 @@ class Views:
             np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
             seen = np.isfinite(z)
             near = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
-            bg = ~binary_dilation(seen, np.ones((3, 3), dtype=bool), iterations=background) if background > 0 else None
-            self.heads.append((project, o, shape, z, near, bg))
+            self.heads.append((project, o, shape, z, near))
+            self._uv.append(uv)
+        self._nearest = [None] * len(self.heads)
 
     def pixels(self, i: int, at: np.ndarray):
         """Head ``i``'s view of positions ``at`` (m, 3): pixel (m, 2) int, depth toward the camera
@@ -95,25 +100,60 @@ class Views:
         """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
         saw (its depth toward the camera beyond the nearest seen point of its pixel and the eight
         around it); positive is air the camera looked through, -inf where no camera saw a point
-        along that line (unknown), +inf beside every head's silhouette (``background``)."""
+        along that line (unknown; beside the silhouettes: `beside`)."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), -np.inf)
-        empty = np.full(len(at), self.background > 0)
-        for i, (_, _, _, _, near, bg) in enumerate(self.heads):
+        for i, head in enumerate(self.heads):
+            near = head[4]
             k, dx, ok = self.pixels(i, at)
             a = np.full(len(at), -np.inf)
             zk = near[k[ok, 0], k[ok, 1]]
             a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
             out = np.maximum(out, a)
-            if bg is not None:
-                e = np.zeros(len(at), dtype=bool)
-                e[ok] = bg[k[ok, 0], k[ok, 1]]
-                empty &= e
-        return np.where(empty, np.inf, out)
+        return out
+
+    #: Margin of `beside`'s images around the points, pixels.
+    PAD = 4
+
+    def beside(self, at: np.ndarray, close: float = 0.0, step=None) -> np.ndarray:
+        """(m,) how far (metres, in the picture) each position ``at`` (m, 3) lies beside the
+        silhouettes of every head: per head, the distance from its image to the head's silhouette,
+        the least over the heads (0 within a silhouette). A head's silhouette is the image of the
+        points it saw, closed (a morphological closing by a disc of radius ``close``, metres: the
+        gaps between neighbouring points filled, its outline kept; at least the head's ``GAP_Q``-th
+        percentile gap between neighbouring points), in sub-pixels of ``step``
+        metres (default a quarter pixel); positions more than ``PAD`` pixels beside the points
+        are at least that far."""
+        from scipy.ndimage import distance_transform_edt
+
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(at), np.inf)
+        step = self.spacing / 4 if step is None else float(step)
+        for i, head in enumerate(self.heads):
+            if self._nearest[i] is None or self._nearest[i][0] != (close, step):
+                uv = self._uv[i]
+                o = uv.min(axis=0) - (self.PAD * self.spacing + close)
+                ij = np.floor((uv - o) / step).astype(np.int64)
+                shape = tuple(ij.max(axis=0) + int(np.ceil((self.PAD * self.spacing + close) / step)) + 1)
+                occ = np.zeros(shape, dtype=bool)
+                occ[ij[:, 0], ij[:, 1]] = True
+                if close > 0:   # closing: dilate by close, then erode by close
+                    r = close
+                    if GAP_Q > 0 and len(uv) > 2:    # at least the head's own gaps between points
+                        from scipy.spatial import cKDTree
+                        r = max(r, float(np.percentile(cKDTree(uv).query(uv, 2)[0][:, 1], GAP_Q)))
+                    occ = distance_transform_edt(distance_transform_edt(~occ) * step <= r) * step > r
+                self._nearest[i] = ((close, step), o, distance_transform_edt(~occ) * step)
+            _, o, dist = self._nearest[i]
+            k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)
+            inside = ((k >= 0) & (k < np.array(dist.shape))).all(axis=1)
+            d = np.full(len(at), self.PAD * self.spacing)
+            d[inside] = dist[k[inside, 0], k[inside, 1]]
+            out = np.minimum(out, d)
+        return out
 
 
-def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float,
-             background: int = 0) -> np.ndarray:
+def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float) -> np.ndarray:
     """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
     saw: `Views.air` of the cloud (parameters as there)."""
-    return Views(points, view_dir, head, spacing, background).air(at)
+    return Views(points, view_dir, head, spacing).air(at)

@@ -87,7 +87,7 @@ def agreement(secs: dict, views: Views, tolerance: float) -> dict:
     owner = np.repeat(np.arange(len(names)), [len(p) for p, _ in surf])
     shown = np.zeros(len(names), dtype=np.int64)
     confirmed = np.zeros(len(names), dtype=np.int64)
-    for i, (_, _, shape, z, _, _) in enumerate(views.heads):
+    for i, (_, _, shape, z, _) in enumerate(views.heads):
         k, dx, ok = views.pixels(i, P)
         # facing the camera: depth grows toward it, so a step along the normal raises the depth
         _, dn, _ = views.pixels(i, P + 1e-3 * N)

@@ -11,15 +11,15 @@ holds another section's points, so no surface spans the air between two sections
 The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
 same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
 out as the open mesh has it (blended into the solids past its rims); and whatever lies in front of
-a surface a camera saw, along its line of sight, or beside the silhouettes of every camera, is air
-(`seen_air`).
+a surface a camera saw, along its line of sight (`recon.views.Views.air`), or beside the
+silhouettes of every camera (`recon.views.Views.beside`), is air.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ..views import seen_air
+from ..views import Views, seen_air  # noqa: F401  (seen_air: re-exported for the tests)
 
 
 def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
@@ -222,7 +222,7 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
 
 
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
-                  reach: float = np.inf, exact: float = np.inf):
+                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -242,6 +242,9 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         Metres: queries farther than this from the nearest vertex's tangent plane take their
         offset along its normal alone (one nearest-vertex query; the ``k`` nearest are averaged
         only near the zero level).
+    beside_max : float
+        Metres: queries farther than this beside the nearest vertex's normal take their offset
+        along it alone too.
 
     Returns
     -------
@@ -275,7 +278,7 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     dist[near] = -along0
     beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
     vertex[near] = used[i0]
-    fine = near[np.abs(along0) < exact]       # the weighted mean near the zero level only
+    fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
     if len(fine) and k > 1:
         d, i = tree.query(at[fine], k)
         along = np.einsum("mkj,mkj->mk", at[fine, None, :] - vp[i], vn[i])
@@ -292,11 +295,17 @@ BAND_BESIDE, BAND_BLEND = 1.0, 2.0
 #: mesh is the smooth weighted mean (`seen_distance`'s ``exact``); farther, the offset along that
 #: vertex's normal, as good where marching the grid needs little more than its sign.
 EXACT = 1.0
+#: Spacings: the silhouettes' gaps between neighbouring points closed up to twice this wide
+#: (`recon.views.Views.beside`'s ``close``).
+CLOSE = 1.0
+#: Sqrt(3) grid steps (a coarse grid point's farthest fine neighbour): the margin of `_seen_band`'s
+#: coarse pass over the band's limits.
+SLACK = 1.0
 
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
-                   view=None, carve: float = 1.0, background: int = 1):
+                   view=None, carve: float = 1.0, background: float = 0.5):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching cubes.
 
@@ -325,13 +334,15 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     seen : (vertices (n', 3), faces (f', 3), face_section (f',)), optional
         The open mesh (wound outward) and its faces' sections.
     view : (view_dir (n, 3), head (n,) or None), optional
-        How ``points`` were seen (`seen_air`).
+        How ``points`` were seen (`recon.views.Views`).
     carve : float
         Spacings: grid points farther than this in front of the surface a camera saw are outside
         (0 = off).
-    background : int
-        Pixels (of one spacing): grid points that every head sees with no point within this many
-        pixels, beside the silhouettes, are outside too (0 = off; `seen_air`).
+    background : float
+        Spacings: grid points that every head sees farther than this beside its silhouette (the
+        image of its points, the gaps between neighbours closed over ``CLOSE`` spacings) are
+        outside too, the surface placed this far beside the outermost points (0 = off;
+        `recon.views.Views.beside`).
 
     Returns
     -------
@@ -382,8 +393,14 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
         g = np.argwhere(F > -voxel)
-        air = seen_air(points, view[0], view[1], lo + voxel * g, spacing, background)
-        cut = np.where(np.isposinf(air), -spacing, carve * spacing - air if carve > 0 else np.inf)
+        at = lo + voxel * g
+        cams = Views(points, view[0], view[1], spacing)
+        cut = np.full(len(g), np.inf)
+        if carve > 0:
+            air = cams.air(at)
+            cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
+        if background > 0:    # beside every head's silhouette
+            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
         F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
@@ -393,22 +410,53 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     """Overwrite ``F`` (and ``lab``) in the seen surface's band with the signed distance to the
-    open mesh (`seen_distance`), blended into the solids' value past its rims, in place."""
-    from scipy.ndimage import binary_dilation
+    open mesh (`seen_distance`), blended into the solids' value past its rims, in place.
+
+    The band's grid points are found coarse to fine: the offsets along and beside the nearest
+    vertex's normal on every second grid point near the mesh, then the signed distance only at the
+    grid points whose coarse corner lies within reach of the band (the offsets change by at most the
+    corner's distance, ``sqrt(3)`` steps, plus the turn of the normals between neighbouring vertices).
+    """
+    from scipy.ndimage import maximum_filter1d
+    from scipy.spatial import cKDTree
 
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return
     used = np.unique(faces)
-    near = np.zeros(F.shape, dtype=bool)
-    vi = np.clip(np.round((vertices[used] - lo) / voxel).astype(np.int64), 0, np.array(F.shape) - 1)
-    near[tuple(vi.T)] = True
+    shape = np.array(F.shape)
     reach = int(np.ceil(max(band, BAND_BLEND) * spacing / voxel)) + 1
-    near = binary_dilation(near, np.ones((3, 3, 3), dtype=bool), iterations=reach)
-    near[[0, -1]] = near[:, [0, -1]] = near[:, :, [0, -1]] = False
-    g = np.argwhere(near)
-    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing,
-                                    reach=np.hypot(band, BAND_BLEND) * spacing, exact=EXACT * voxel)
+    # grid points within ``reach`` steps (a box) of a vertex's grid point, on the coarse lattice
+    # (even indices) first: the block of 2 x 2 x 2 points at each coarse point
+    cshape = tuple((shape + 1) // 2)
+    near = np.zeros(cshape, dtype=np.uint8)
+    vi = np.clip(np.round((vertices[used] - lo) / voxel).astype(np.int64), 0, shape - 1)
+    near[tuple((vi // 2).T)] = 1
+    r = (reach + 2) // 2
+    for ax in range(3):
+        near = maximum_filter1d(near, 2 * r + 1, axis=ax, mode="constant")
+    gc = np.argwhere(near) * 2
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    vn = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
+    reach_m = np.hypot(band, BAND_BLEND) * spacing
+    margin = np.sqrt(3) * voxel
+    d0, i0 = cKDTree(vertices[used]).query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
+    ok = np.isfinite(d0)
+    gc, d0, i0 = gc[ok], d0[ok], i0[ok]
+    along = -np.einsum("mj,mj->m", lo + voxel * gc - vertices[used][i0], vn[i0])    # positive inside
+    beside = np.sqrt(np.maximum(d0 ** 2 - along ** 2, 0))
+    slack = SLACK * margin
+    keep = ((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
+            & (beside < BAND_BLEND * spacing + slack))
+    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
+    g = g[((g >= 1) & (g < shape - 1)).all(axis=1)]
+    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
+                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing)
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
