@@ -443,6 +443,14 @@ class SurfaceParams:
         instead of 2: 0.257 % instead of 0.255 %, max 0.46 %, 21/21, good 1.4006, and on the
         1.4 mm scan of standing the triangles tested fall from 156k to 69k (of 1.05M: the
         normals cost about 0.2 s there); 3: 0.267 %, 21/21, max 0.47 %.
+    tilt_cos, tilt_min_edge : float
+        Tilted triangles (paper: none; ``tilt_cos = 0`` switches it off; ``proposed`` only): a
+        triangle of the surface lies in the tangent planes at its vertices up to the surface's turn
+        across it (`recon.surface.mesh.normal_agreement`, the normals of the concavity rule). A
+        triangle longer than ``tilt_min_edge`` spacings whose normal has a mean ``|cos|`` below
+        ``tilt_cos`` with its vertices' normals stands across the surface the data show (a cover
+        spanning a curved hole, a rim face across a thin part, fingers joined across their gaps):
+        the paper's spurious surface, which the data do not support. It is removed.
     """
 
     seam_overlap: float = field(default=0.6,  # paper 3.3, radians
@@ -489,6 +497,12 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
+    tilt_cos: float = field(default=0.6, metadata={
+        "help": "tilted covers: a long triangle whose normal has a mean |cosine| below this with the "
+                "normals estimated at its vertices is removed (0 = off)", "unit": "", "range": (0.0, 1.0)})
+    tilt_min_edge: float = field(default=2.5, metadata={
+        "help": "the tilt rule tests only triangles with an edge longer than this", "unit": "spacings",
+        "range": (0, 1000)})
     hull_edge_min: float = field(default=0.04, metadata={
         "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
                 "dense scans keep their seen surface across small gaps (0 = spacings alone)",
@@ -976,7 +990,7 @@ PAPER = {
     "hip_planes": False, "claim_across_joints": 0.0, "three_keep_nearest": 0.0,
     "adopt_unlabeled": False, "refine_adjacent": False,
     # surface (paper 3.3)
-    "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0,
+    "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0, "tilt_cos": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "far_view": False,
     "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0, "cover_max_edge": 0.0,

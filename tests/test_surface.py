@@ -493,3 +493,57 @@ def test_view_surface_closes_the_rim_between_the_cameras_images():
     assert depth.max() < 0.005 and depth.min() > -0.0005              # chords, never outside
     rim = closed[~np.isin(S.face_keys(closed), S.face_keys(images))]
     assert len(rim) and (vd[rim][:, :, 1] > 0).any(axis=1).all() and (vd[rim][:, :, 1] < 0).any(axis=1).all()
+
+
+def test_normal_agreement_is_the_cosine_of_the_tilt():
+    """On a plane with its true normals a face lifted at one corner by a known angle agrees by
+    that angle's cosine; across a V-groove (vertex normals at +-31 degrees to the horizontal cover)
+    by cos(31 degrees); a degenerate face counts as agreeing."""
+    up = np.tile([0.0, 0.0, 1.0], (3, 1))
+    for deg in (0.0, 20.0, 60.0):
+        t = np.radians(deg)
+        P = np.array([[0.0, 0.0, 0.0], [0.0, 0.02, 0.0], [0.02 * np.cos(t), 0.0, 0.02 * np.sin(t)]])
+        assert np.isclose(S.normal_agreement(P, np.array([[0, 1, 2]]), up[None])[0], np.cos(t))
+    P, f = _groove(1)
+    nrm = S.point_normals(P, f.ravel(), np.array([0.0, 0.0, 1.0]), k=8).reshape(-1, 3, 3)
+    assert np.isclose(S.normal_agreement(P, f, nrm)[0], 1 / np.hypot(0.6, 1.0))
+    line = np.array([[0.0, 0, 0], [0.01, 0, 0], [0.02, 0, 0]])
+    assert S.normal_agreement(line, np.array([[0, 1, 2]]), up[None])[0] == 1.0
+
+
+def _dimple(depth, step=0.01):
+    """A 1 cm grid on z = 0 seen from +z, its centre point moved ``depth`` along z, and the four
+    triangles of 2-cell half-diagonals around it: with ``depth`` < 0 a pit (a cover over it would be
+    a convex hole's, behind the tangent planes), the triangles tilted by atan(depth / 2 cm)."""
+    g = np.stack(np.meshgrid(np.arange(-0.1, 0.1001, step), np.arange(-0.1, 0.1001, step)), -1).reshape(-1, 2)
+    P = np.column_stack([g, np.zeros(len(g))])
+    at = lambda x, y: int(np.argmin(np.linalg.norm(g - [x, y], axis=1)))
+    c = at(0.0, 0.0)
+    P[c, 2] = depth
+    ring = [at(0.02, 0.0), at(0.0, 0.02), at(-0.02, 0.0), at(0.0, -0.02)]
+    tilted = np.array([[c, ring[i], ring[(i + 1) % 4]] for i in range(4)])
+    flat = np.array([[at(0.05, 0.05), at(0.06, 0.05), at(0.05, 0.06)],
+                     [at(0.05, 0.05), at(0.08, 0.05), at(0.05, 0.08)]])   # short and long, on the plane
+    return P, tilted, flat
+
+
+@pytest.mark.parametrize("depth,removed", [(-0.03, True), (-0.005, False)])
+def test_tilt_rule_removes_long_triangles_standing_across_the_surface(depth, removed):
+    """Long triangles into a pit 3 cm deep stand at 56 degrees to the plane around them (mean
+    |cosine| with the vertices' estimated normals 0.3 to 0.6, the pit's point tilting its
+    neighbours' normals): behind the tangent planes, the concavity rule keeps them; the tilt rule
+    at 0.75 removes them. At 5 mm deep (14 degrees, about 0.94) they stay, as do long and short
+    triangles on the plane."""
+    P, tilted, flat = _dimple(depth)
+    faces = np.concatenate([tilted, flat])
+    sec = np.zeros(len(faces), dtype=np.int8)
+    vd = np.array([0.0, 0.0, 1.0])
+    base = dict(facing_cos=-1.0, carve_margin=0.0, tilt_min_edge=2.5, workers=1)
+    sp = S.median_spacing(P)
+    off, _ = S.remove_air(P, faces, sec, vd, sp, SurfaceParams(tilt_cos=0.0, **base))
+    on, _ = S.remove_air(P, faces, sec, vd, sp, SurfaceParams(tilt_cos=0.75, **base))
+    assert len(off) == len(faces)                                   # the concavity rule keeps all
+    keys = S.face_keys(np.concatenate([faces, on]))
+    gone = ~np.isin(keys[:len(faces)], keys[len(faces):])
+    assert (gone[:4] == removed).all()
+    assert not gone[4:].any()                                       # the plane's triangles stay

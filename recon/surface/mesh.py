@@ -25,7 +25,9 @@ their shared points and removes the triangles made only of multi-section points 
 vertices (points seen from opposite sides joined across a gap, ``facing_cos``),
 `over_concavity` removes the long triangles whose centroid stands in front of the surface's
 tangent planes at their vertices (covers over concave holes, ``concave_height``; covers of
-holes in convex surface, inside the body, stay as in the paper), `seen_through`
+holes in convex surface, inside the body, stay as in the paper), `normal_agreement` removes
+the long triangles that stand across the surface the points' estimated normals show
+(``tilt_cos``: spurious surface the data do not support), `seen_through`
 removes the triangles that a camera ray crossed in front of its point (free space,
 ``carve_margin``), and `orient_faces` turns every triangle outward.
 
@@ -765,6 +767,25 @@ def over_concavity(points: np.ndarray, faces: np.ndarray, normals: np.ndarray) -
     return np.einsum("ikj,ikj->ik", normals, c[:, None, :] - v)
 
 
+def normal_agreement(points: np.ndarray, faces: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(k,) mean over each triangle's vertices of ``|cos|`` between the triangle's normal and the
+    surface's normal estimated at the vertex (``normals`` (k, 3, 3), unit, e.g. `point_normals`).
+
+    A triangle of the surface lies in the tangent planes at its vertices up to the surface's
+    turn across it: near 1 on a patch sampled densely enough. A long triangle that stands across
+    the surface (a cover spanning a curved hole, a rim face joining two views around a thin part,
+    fingers joined across their gaps) does not, and the data do not support it. Degenerate
+    triangles give 1 (nothing to judge).
+    """
+    if len(faces) == 0:
+        return np.zeros(0)
+    v = points[faces]
+    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    ln = np.sqrt(np.einsum("ij,ij->i", n, n))
+    cos = np.abs(np.einsum("ikj,ij->ik", normals, n)).mean(axis=1)
+    return np.divide(cos, ln, out=np.ones(len(faces)), where=ln > 0)
+
+
 def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, drop_inner: bool = True):
     """Join the section surfaces through their shared points.
 
@@ -844,7 +865,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     skipped = []
     tree = None   # one KD-tree of the points for the spacing and the rules beyond the paper
     if spacing is None or (drop_inner and view_dir is not None
-                           and (params.concave_height > 0 or params.carve_margin > 0)):
+                           and (params.concave_height > 0 or params.tilt_cos > 0 or params.carve_margin > 0)):
         from scipy.spatial import cKDTree
 
         tree = cKDTree(points)
@@ -995,8 +1016,10 @@ def remove_air(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, 
                spacing: float, params: SurfaceParams, tree=None):
     """The rules of ``proposed`` beyond the paper that remove surface in the air, in order: view
     consistency (``params.facing_cos``, `view_consistency`), covers of concavities
-    (``params.concave_height``, `over_concavity`) and free-space carving (``params.carve_margin``,
-    `seen_through`); each is tested only on triangles longer than its minimum edge.
+    (``params.concave_height``, `over_concavity`) and tilted triangles (``params.tilt_cos``,
+    `normal_agreement`), which share the points' estimated normals (`point_normals`), and
+    free-space carving (``params.carve_margin``, `seen_through`); each is tested only on
+    triangles longer than its minimum edge.
 
     Parameters
     ----------
@@ -1022,18 +1045,27 @@ def remove_air(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, 
         long_ = np.flatnonzero(longest > params.facing_min_edge * spacing)
         keep[long_] = view_consistency(points, faces[long_], view_dir) >= params.facing_cos
         faces, face_section, longest = faces[keep], face_section[keep], longest[keep]
-    if params.concave_height > 0:
+    concave, tilt = params.concave_height > 0, params.tilt_cos > 0
+    if concave or tilt:
         if tree is None:
             from scipy.spatial import cKDTree
 
             tree = cKDTree(points)
-        long_ = np.flatnonzero(longest > params.concave_min_edge * spacing)
+        min_edge = min(params.concave_min_edge if concave else np.inf, params.tilt_min_edge if tilt else np.inf)
+        long_ = np.flatnonzero(longest > min_edge * spacing)
         ids, inv = np.unique(faces[long_].ravel(), return_inverse=True)
-        nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)
+        nrm = point_normals(points, ids, view_dir, params.concave_neighbours, tree)[inv].reshape(-1, 3, 3)
+        ok = np.ones(len(long_), dtype=bool)
+        if concave:
+            lift = over_concavity(points, faces[long_], nrm)
+            ok &= ~(longest[long_] > params.concave_min_edge * spacing) | (
+                (lift.min(axis=1) <= params.concave_height * spacing)
+                & (lift.mean(axis=1) <= params.concave_mean_height * spacing))
+        if tilt:
+            ok &= ~(longest[long_] > params.tilt_min_edge * spacing) | (
+                normal_agreement(points, faces[long_], nrm) >= params.tilt_cos)
         keep = np.ones(len(faces), dtype=bool)
-        lift = over_concavity(points, faces[long_], nrm[inv].reshape(-1, 3, 3))
-        keep[long_] = ((lift.min(axis=1) <= params.concave_height * spacing)
-                       & (lift.mean(axis=1) <= params.concave_mean_height * spacing))
+        keep[long_] = ok
         faces, face_section, longest = faces[keep], face_section[keep], longest[keep]
     if params.carve_margin > 0:
         keep = ~seen_through(points, faces, view_dir, spacing, params.carve_margin,
