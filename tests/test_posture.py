@@ -113,10 +113,10 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     thigh fitted from above only (its column 4 cm high at the hip, drooping 10 degrees towards the
     knee, as on the squat scans: bend 108 degrees) moves the triangle's knee (`knee_between`) 6.3 cm,
     the knee on the lower leg's axis, between where the thigh's axis crosses it and a shank above the
-    ankle, 1.6 cm; `place_joints` uses it beyond `KNEE_MEET_DEG`."""
+    ankle, 1.6 cm; `place_seams` uses it beyond `KNEE_MEET_DEG`."""
     from bodyscan.recon.posture.bodymodel import standard_body
     from bodyscan.recon.geometry import unit
-    from bodyscan.recon.posture.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
+    from bodyscan.recon.posture.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_seams
 
     x = np.array([1.0, 0.0, 0.0])
     hip, knee, ankle = np.array([0.12, 0.0, 0.47]), np.array([0.17, -0.40, 0.44]), np.array([0.26, -0.15, 0.08])
@@ -138,11 +138,11 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     assert np.linalg.norm(tri - knee) > 0.05
     assert np.linalg.norm(got - knee) < 0.4 * np.linalg.norm(tri - knee)
     assert abs(np.linalg.norm(np.cross(got - knee, shin.axis))) < 1e-9      # on the lower leg's axis
-    # place_joints takes it for a leg bent beyond KNEE_MEET_DEG
+    # place_seams takes it for a leg bent beyond KNEE_MEET_DEG
     body = standard_body(1.75)
     secs = {"waist": SectionShape("waist", [0, 0.0, 0.5], [0, 0.0, 0.85], [0.15, 0.11], x),
             "thigh_l": high.replace(end=got), "lower_leg_l": shin.replace(start=got)}
-    j = place_joints(secs, body, back)
+    j = place_seams(secs, body, back)
     assert np.allclose(j["knee_l"], bent_knee(secs["thigh_l"], secs["lower_leg_l"], None, shank))
 
 

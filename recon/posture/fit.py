@@ -210,7 +210,7 @@ from .bodymodel import LIMBS, StandardBody, kind_of
 from ..cloud import check_points
 from ..geometry import rotvec
 from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
-from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, shank_ratio, split_hips,
+from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_seams, shank_ratio, split_hips,
                      split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
 from ..model import BodyFit, SECTIONS
@@ -535,11 +535,12 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
     fitted = centre_neck(work, fitted)
-    joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
-    fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), joints, pose.body))
-    coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
-                                                                arm_tolerance=params.fit_arm_size_tolerance))
-    return BodyFit(sections=fitted, joints=joints,
+    seams = place_seams(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
+    joints = seams
+    fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), seams, pose.body))
+    coarse = BodyFit(sections=coarse_secs, joints=place_seams(coarse_secs, pose.body, back, work,
+                                                               arm_tolerance=params.fit_arm_size_tolerance))
+    return BodyFit(sections=fitted, joints=joints, seams=seams,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
 

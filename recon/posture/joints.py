@@ -2,12 +2,12 @@
 `recon.posture`).
 
 `front_sign` and `swap_sides` read front and back from the body's shape (feet, knees, hips);
-`place_joints` puts the rig's joints on the fitted sections; `split_torso`, `split_hips`,
-`split_knees` and `joint_caps` make the reported sections meet where the body file's section labels
-change, and `joint_caps` (with `shape_limbs`) gives the upper arms and lower legs the labels'
-cross-sections, deeper front to back than the fit's round columns, and the upper arms a start cap
-over the shoulder; `centre_neck` (before the joints are placed) puts the chest's top between the
-sides of the neck seen in the points, the head and the shoulders following.
+`place_seams` puts the joints on the fitted sections, where the clustering cuts; `split_torso`,
+`split_hips`, `split_knees` and `joint_caps` make the reported sections meet where the body file's
+section labels change, and `joint_caps` (with `shape_limbs`) gives the upper arms and lower legs the
+labels' cross-sections, deeper front to back than the fit's round columns, and the upper arms a
+start cap over the shoulder; `centre_neck` (before the joints are placed) puts the chest's top
+between the sides of the neck seen in the points, the head and the shoulders following.
 """
 
 from __future__ import annotations
@@ -196,11 +196,33 @@ def _fingertip(points, q: SectionShape, body: StandardBody, step: float = 0.03) 
     return float(max(full, h[near][run].max())) if run.any() else full
 
 
-def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, arm_tolerance: float = 0.1) -> dict:
-    """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
-    ``points`` (n, 3), when given, place the ankles a foot height above the soles; a nearly straight
-    arm measured (shoulder to wrist) more than ``arm_tolerance`` off the model's arm has its elbow
-    placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`)."""
+def place_seams(secs: dict, body: StandardBody, back: np.ndarray, points=None, arm_tolerance: float = 0.1) -> dict:
+    """Where the sections meet, by joint name (`recon.model.BodyFit.seams`): the points the
+    clustering's joint planes, bone directions and the extremities' cuts are taken from.
+
+    They are the joints placed on the sections' ends and axes, the spine's moved behind the torso's
+    axis (`recon.posture.bodymodel.SPINE_BACK`) and the hips behind and outside the thighs' tops
+    (`recon.posture.bodymodel.HIP_OFFSET`) before a straight leg's knee is closed between hip and
+    ankle (`knee_between`).
+
+    Parameters
+    ----------
+    secs : dict of SectionShape
+        The fitted sections.
+    body : StandardBody
+    back : (3,) float
+        The subject's backward direction.
+    points : (n, 3) float, optional
+        When given, the ankles are placed a foot height above the soles and the wrists a hand
+        length before the fingertips seen.
+    arm_tolerance : float
+        A nearly straight arm measured (shoulder to wrist) more than this fraction off the model's
+        arm has its elbow placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`).
+
+    Returns
+    -------
+    dict of str to (3,) float
+    """
     j = {}
     soled = set()   # lower legs whose ankle was placed from the detected sole
     tipped = set()  # forearms of nearly straight arms whose wrist was placed from the fingertips
@@ -616,9 +638,9 @@ def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
     return out
 
 
-def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
-    """The reported thigh ends at the knee joint (placed by `knee_between` when the ankle was found
-    from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
+def split_knees(secs: dict, seams: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
+    """The reported thigh ends at the knee's seam (``seams``: `place_seams`; placed by `knee_between`
+    when the ankle was found from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
     it along the shank, where the body file's labels change (`recon.posture.bodymodel.KNEE_SPLIT`).
 
     Estimated-posture section accuracy, 21 bodies: 0.892 -> 0.898 for the drop (0.894 when the
@@ -630,8 +652,8 @@ def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE
         if kind_of(shin) != "lower_leg" or shin not in secs:
             continue
         s = secs[shin]
-        meet = thigh in secs and knee in joints
-        top = joints[knee] if meet else s.start
+        meet = thigh in secs and knee in seams
+        top = seams[knee] if meet else s.start
         if meet:
             out[thigh] = secs[thigh].replace(end=top)
         axis = unit(s.end - top)
