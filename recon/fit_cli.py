@@ -12,7 +12,9 @@ def register(sub) -> None:
         "fit", help="fit the body model to a point cloud (posture estimation, paper section 2)",
         description="Fit the body model (11 sections of elliptic columns and caps) to a point cloud: "
                     "volume matching, then fine adjustment on the points. Writes FIT.json with "
-                    "'joints' {name: [x, y, z]} and 'sections' {name: {...}}; units are metres.")
+                    "'joints' {name: [x, y, z]} (the estimated joints), 'seams' {name: [x, y, z]} (where the "
+                    "sections meet, which the clustering cuts at) and 'sections' {name: {...}}; units "
+                    "are metres.")
     p.add_argument("cloud", metavar="CLOUD", help="point cloud: .ply, .xyz/.txt (x y z columns) or .pcd, metres")
     p.add_argument("--out", required=True, metavar="FIT.json", help="output fit (JSON)")
     p.add_argument("--preview", metavar="PNG", help="also draw the cloud with the model over it, in "

@@ -261,7 +261,8 @@ class BodyFit:
     sections : dict of str to SectionShape
         Fitted sections, by name; a section that could not be fitted is absent.
     joints : dict of str to (3,) float
-        Joint positions by canonical name (pelvis, chest, neck, head, shoulder_l, ...), metres.
+        Joint positions by canonical name (pelvis, chest, neck, head, shoulder_l, ...), metres: the
+        fit's estimate of the body's joints (reported, and scored against the truth).
     residuals : dict of str to float
         Per fitted section, RMS distance (metres) of its points to its model surface.
     unfitted : tuple of str
@@ -273,6 +274,11 @@ class BodyFit:
     extremities : dict of str to SectionShape
         Hands and feet placed past the wrists and ankles (`EXTREMITIES`,
         `recon.posture.extremities.place_extremities`); empty in the paper's model.
+    seams : dict of str to (3,) float
+        Where the sections meet, by joint name, metres (`recon.posture.joints.place_seams`): the
+        clustering's joint planes and bones, and the cuts of the hands and feet, are taken from
+        these, not from ``joints``. None (the default) takes ``joints``; so does a fit file without
+        them (`from_dict`). ``dataclasses.replace(fit, joints=...)`` keeps the seams.
     """
 
     sections: dict
@@ -282,11 +288,17 @@ class BodyFit:
     coarse: "BodyFit | None" = None
     times: dict = field(default_factory=dict)
     extremities: dict = field(default_factory=dict)
+    seams: "dict | None" = None
+
+    def __post_init__(self):
+        if self.seams is None:
+            object.__setattr__(self, "seams", self.joints)
 
     def to_dict(self) -> dict:
-        """JSON-ready: ``{"joints": {name: [x, y, z]}, "sections": {name: {...}}, ...}``."""
+        """JSON-ready: ``{"joints": {name: [x, y, z]}, "seams": {...}, "sections": {name: {...}}, ...}``."""
         d = {
             "joints": {k: np.asarray(v, dtype=float).tolist() for k, v in self.joints.items()},
+            "seams": {k: np.asarray(v, dtype=float).tolist() for k, v in self.seams.items()},
             "sections": {k: {**s.to_dict(), "residual_m": self.residuals.get(k)}
                          for k, s in self.sections.items()},
             "unfitted": list(self.unfitted),
@@ -303,6 +315,7 @@ class BodyFit:
         R = np.asarray(R, dtype=np.float64)
         return replace(self, sections={k: s.moved(R, t) for k, s in self.sections.items()},
                        joints={k: R @ np.asarray(v, dtype=float) + t for k, v in self.joints.items()},
+                       seams={k: R @ np.asarray(v, dtype=float) + t for k, v in self.seams.items()},
                        coarse=self.coarse.moved(R, t) if self.coarse is not None else None,
                        extremities={k: s.moved(R, t) for k, s in self.extremities.items()})
 
@@ -311,6 +324,7 @@ class BodyFit:
         return cls(
             sections={k: SectionShape.from_dict(k, v) for k, v in d["sections"].items()},
             joints={k: np.asarray(v, dtype=float) for k, v in d["joints"].items()},
+            seams={k: np.asarray(v, dtype=float) for k, v in d["seams"].items()} if "seams" in d else None,
             residuals={k: v["residual_m"] for k, v in d["sections"].items() if v.get("residual_m") is not None},
             unfitted=tuple(d.get("unfitted", ())),
             coarse=cls.from_dict(d["coarse"]) if d.get("coarse") else None,

@@ -125,7 +125,7 @@ class ClusterParams:
         spurious and bridging unchanged (squat 0.910 -> 0.923, its waist>chest loss 3.1 -> 2.3 %).
     joint_plane_bones : bool
         Joint plane at the end joints (chest, neck, elbows, knees): the bones' directions from the
-        fit's joints instead of the columns' axes (paper silent; see
+        fit's seams (`recon.model.BodyFit.seams`) instead of the columns' axes (paper silent; see
         `recon.clustering.cluster.joint_plane_score`). The body file's sections change where the skinning
         changes bones; the estimated waist's column stands more upright than the lumbar spine (the
         chest joint lies behind the pelvis joint), and its plane cut the front of the chest too

@@ -206,6 +206,22 @@ def test_joint_plane_is_the_proximal_cross_section_where_the_joint_lies_inside_t
     assert mitre[0] > 0 > mitre[1]          # the mitre tilts forward: the front point goes to the chest
 
 
+def test_the_joint_planes_are_cut_at_the_seams_not_at_the_joints():
+    """The clustering reads a fit's seams (where its sections meet), not its reported joints: moving
+    the joints 30 cm leaves the chest's plane where it was; moving the seam moves it."""
+    joint = np.array([0, 0, 1.3])
+    waist = SectionShape("waist", [0, 0, 0.95], joint, [0.15, 0.1], X)
+    chest = SectionShape("chest", joint, [0, 0, 1.65], [0.15, 0.1], X)
+    fit = BodyFit(sections={"waist": waist, "chest": chest}, joints={"chest": joint})
+    pts = joint + np.array([[0, -0.12, 0.02], [0, 0.12, 0.02], [0, -0.12, -0.02], [0, 0.12, -0.02]])
+    w, c = np.full(4, I["waist"]), np.full(4, I["chest"])
+    at = C.joint_plane_score(pts, w, c, fit, 0.3)
+    assert (at[:2] > 0).all() and (at[2:] < 0).all()
+    away = BodyFit(sections=fit.sections, joints={"chest": joint + [0, 0.3, 0.0]}, seams={"chest": joint})
+    assert np.array_equal(C.joint_plane_score(pts, w, c, away, 0.3), at)
+    cut = BodyFit(sections=fit.sections, joints={"chest": joint}, seams={"chest": joint + [0, 0.3, 0.0]})
+    assert not np.array_equal(C.joint_plane_score(pts, w, c, cut, 0.3), at)
+
 def test_side_joint_plane_is_the_arms_cross_section_through_the_shoulder():
     """A hanging arm beside the chest: points below the shoulder joint score for the arm, points
     above for the chest; none in the arm's cap above its column; none at a hip below the waist."""

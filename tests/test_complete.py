@@ -62,9 +62,10 @@ def outside(shapes, x):
 
 
 def with_joints(fit):
-    """The capsule fit with the left wrist and ankle at its forearm's and lower leg's ends."""
-    return replace(fit, joints={**fit.joints, "wrist_l": fit.sections["forearm_l"].end,
-                                "ankle_l": fit.sections["lower_leg_l"].end})
+    """The capsule fit with the left wrist and ankle (joints and seams) at its forearm's and lower
+    leg's ends."""
+    joints = {**fit.joints, "wrist_l": fit.sections["forearm_l"].end, "ankle_l": fit.sections["lower_leg_l"].end}
+    return replace(fit, joints=joints, seams=joints)
 
 
 def test_the_fit_places_the_hand_and_the_foot_and_the_clustering_gives_them_their_points(with_hand_and_foot):

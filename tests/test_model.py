@@ -78,3 +78,26 @@ def test_bodyfit_json_roundtrip():
     assert back.residuals == {"thigh_l": 0.004} and back.unfitted == ("head",)
     m = adjacency_matrix()
     assert m.sum() == 20 and (m == m.T).all()
+
+
+def test_bodyfit_seams_are_kept_apart_from_the_joints():
+    """A fit's seams (where the clustering cuts) survive the fit file and a rigid motion apart from
+    its joints; a fit file without seams (written before they were kept) cuts at its joints."""
+    import json
+    from bodyscan.recon.geometry import rotvec
+    from bodyscan.recon.model import BodyFit
+    joints = {"hip_l": np.array([0.1, 0.04, 0.9])}
+    seams = {"hip_l": np.array([0.08, 0.0, 0.92])}
+    fit = BodyFit(sections={"thigh_l": _cyl()}, joints=joints, seams=seams)
+    d = json.loads(json.dumps(fit.to_dict()))
+    back = BodyFit.from_dict(d)
+    np.testing.assert_array_equal(back.joints["hip_l"], joints["hip_l"])
+    np.testing.assert_array_equal(back.seams["hip_l"], seams["hip_l"])
+    R, t = rotvec(np.array([0.0, 0.0, 0.7])), np.array([1.0, -2.0, 0.5])
+    moved = back.moved(R, t)
+    np.testing.assert_allclose(moved.joints["hip_l"], R @ joints["hip_l"] + t)
+    np.testing.assert_allclose(moved.seams["hip_l"], R @ seams["hip_l"] + t)
+    del d["seams"]
+    old = BodyFit.from_dict(d)
+    np.testing.assert_array_equal(old.seams["hip_l"], joints["hip_l"])
+    assert BodyFit(sections={}, joints=joints).seams is joints

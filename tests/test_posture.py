@@ -113,10 +113,10 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     thigh fitted from above only (its column 4 cm high at the hip, drooping 10 degrees towards the
     knee, as on the squat scans: bend 108 degrees) moves the triangle's knee (`knee_between`) 6.3 cm,
     the knee on the lower leg's axis, between where the thigh's axis crosses it and a shank above the
-    ankle, 1.6 cm; `place_joints` uses it beyond `KNEE_MEET_DEG`."""
+    ankle, 1.6 cm; `place_seams` uses it beyond `KNEE_MEET_DEG`."""
     from bodyscan.recon.posture.bodymodel import standard_body
     from bodyscan.recon.geometry import unit
-    from bodyscan.recon.posture.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_joints
+    from bodyscan.recon.posture.joints import KNEE_MEET_DEG, bent_knee, knee_between, place_seams
 
     x = np.array([1.0, 0.0, 0.0])
     hip, knee, ankle = np.array([0.12, 0.0, 0.47]), np.array([0.17, -0.40, 0.44]), np.array([0.26, -0.15, 0.08])
@@ -138,12 +138,56 @@ def test_a_deeply_bent_knee_lies_on_the_lower_legs_axis():
     assert np.linalg.norm(tri - knee) > 0.05
     assert np.linalg.norm(got - knee) < 0.4 * np.linalg.norm(tri - knee)
     assert abs(np.linalg.norm(np.cross(got - knee, shin.axis))) < 1e-9      # on the lower leg's axis
-    # place_joints takes it for a leg bent beyond KNEE_MEET_DEG
+    # place_seams takes it for a leg bent beyond KNEE_MEET_DEG
     body = standard_body(1.75)
     secs = {"waist": SectionShape("waist", [0, 0.0, 0.5], [0, 0.0, 0.85], [0.15, 0.11], x),
             "thigh_l": high.replace(end=got), "lower_leg_l": shin.replace(start=got)}
-    j = place_joints(secs, body, back)
+    j = place_seams(secs, body, back)
     assert np.allclose(j["knee_l"], bent_knee(secs["thigh_l"], secs["lower_leg_l"], None, shank))
+
+
+@pytest.mark.parametrize("turn", [0.0, 40.0])
+def test_joints_sit_where_the_offset_table_puts_them_in_their_sections_frame(turn):
+    """`offset_joints` moves each joint from its section's end or axis by stature x (a + b x (stature
+    / STATURE - 1)) along (out, back, along) of its section: a standing body 2.1 m tall with
+    known sections, every joint placed against positions worked out by hand (left is +x, the back
+    +y, the thighs and lower legs point down, the left forearm straight back: its offset towards the
+    back has no direction across it and is dropped). The scene turned about the vertical and tilted
+    gives the same joints, turned."""
+    from bodyscan.recon.posture.bodymodel import STATURE, standard_body
+    from bodyscan.recon.posture.joints import place_joints
+    from bodyscan.recon.geometry import rotvec
+
+    H = 2.1
+    g = H / STATURE - 1.0
+    table = {"pelvis": ((0.3, 0.01, 0.02), (0.0, 0.0, 0.05)), "hip": ((0.01, 0.02, 0.03), (0.05, 0.0, -0.1)),
+             "knee": ((0.0, 0.01, -0.02), (0.0, 0.0, 0.1)), "wrist": ((0.01, 0.02, 0.03), (0.0, 0.0, 0.0))}
+    x, y, z = np.eye(3)
+    secs = {"waist": SectionShape("waist", [0, 0, 1.0], [0, 0, 1.36], [0.15, 0.11], x),
+            "chest": SectionShape("chest", [0, 0, 1.36], [0, 0, 1.6], [0.17, 0.12], x),
+            "upper_arm_l": SectionShape("upper_arm_l", [0.2, 0, 1.5], [0.2, 0, 1.2], [0.045, 0.045], x),
+            "forearm_l": SectionShape("forearm_l", [0.2, 0, 1.2], [0.2, 0.3, 1.2], [0.04, 0.04], x,
+                                      closed=(True, False))}
+    for side, sx in (("l", 0.1), ("r", -0.1)):
+        secs[f"thigh_{side}"] = SectionShape(f"thigh_{side}", [sx, 0, 1.0], [sx, 0, 0.55], [0.07, 0.07], x)
+        secs[f"lower_leg_{side}"] = SectionShape(f"lower_leg_{side}", [sx, 0, 0.55], [sx, 0, 0.1], [0.05, 0.05], x)
+    body = standard_body(H)
+    want = {"pelvis": [0, 0, 1.0] + H * np.array([0.0, 0.01, 0.02 + 0.05 * g]),   # spine: no out
+            "chest": np.array([0, 0, 1.36]), "neck": np.array([0, 0, 1.6]),
+            "elbow_l": np.array([0.2, 0, 1.2]),
+            "wrist_l": [0.2, body.length("forearm"), 1.2] + H * np.array([0.01, 0.03, 0.0])}
+    for side, sx, out in (("l", 0.1, x), ("r", -0.1, -x)):
+        want[f"hip_{side}"] = [sx, 0, 1.0] + H * ((0.01 + 0.05 * g) * out + 0.02 * y + (0.03 - 0.1 * g) * z)
+        want[f"knee_{side}"] = [sx, 0, 0.55] + H * (0.01 * y - (-0.02 + 0.1 * g) * z)
+        want[f"ankle_{side}"] = np.array([sx, 0, 0.55 - body.length("lower_leg")])
+    R = rotvec(np.radians(turn) * z) @ rotvec(np.radians(turn / 4) * x)
+    turned = {k: v.moved(R, np.zeros(3)) for k, v in secs.items()}
+    got = place_joints(turned, body, R @ y, offsets=table)
+    assert set(got) == set(want) | {"shoulder_l"}
+    for k, v in want.items():
+        assert np.allclose(got[k], R @ v, atol=1e-9), k
+    raw = place_joints(turned, body, R @ y, offsets={})
+    assert np.allclose(raw["pelvis"], R @ [0, 0, 1.0]) and np.allclose(raw["knee_r"], R @ [-0.1, 0, 0.55])
 
 
 def test_crown_anchor_keeps_a_level_thigh_on_its_line():

@@ -476,9 +476,9 @@ BONE_MAX_ANGLE = 45.0
 def _bone(fit: BodyFit, a: str, b: str, axis: np.ndarray) -> np.ndarray:
     """(3,) unit direction from joint ``a`` to joint ``b`` of ``fit``, or ``axis`` (unit, pointing
     the same way) when a joint is missing or the bone lies more than `BONE_MAX_ANGLE` from it."""
-    if not fit.joints or a not in fit.joints or b not in fit.joints:
+    if not fit.seams or a not in fit.seams or b not in fit.seams:
         return axis
-    v = np.asarray(fit.joints[b], dtype=float) - np.asarray(fit.joints[a], dtype=float)
+    v = np.asarray(fit.seams[b], dtype=float) - np.asarray(fit.seams[a], dtype=float)
     n = np.linalg.norm(v)
     if n < 1e-6 or (v / n) @ axis < np.cos(np.radians(BONE_MAX_ANGLE)):
         return axis
@@ -497,10 +497,10 @@ def _tilt_to_midline(fit: BodyFit, joint: str, j: np.ndarray, away: np.ndarray,
     the body's midline, ``inward`` the unit direction from the joint ``j`` to the midline joint
     (`_MIDLINE`) across ``away``. ``away`` unchanged where no midline joint is known or the limb
     points along the line to it (less than 0.3 of that line across the limb: a T-pose's arm)."""
-    names = [n for n in _MIDLINE.get(joint, ()) if fit.joints and n in fit.joints]
+    names = [n for n in _MIDLINE.get(joint, ()) if fit.seams and n in fit.seams]
     if not names:
         return away
-    to_mid = np.asarray(fit.joints[names[0]], dtype=float) - j
+    to_mid = np.asarray(fit.seams[names[0]], dtype=float) - j
     inward = to_mid - (to_mid @ away) * away
     if np.linalg.norm(inward) < 0.3 * np.linalg.norm(to_mid):
         return away
@@ -589,8 +589,9 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         Where the columns overlap, the plane through the middle of the overlap (else D's end).
     bones : bool
         At the end joints (`BONE_ENDS`: chest, neck, elbows, knees), the directions of the bones
-        from the fit's joints instead of the columns' axes: P's from its other joint to the joint,
-        D's from the joint to its other joint (each only within `BONE_MAX_ANGLE` of the axis).
+        from the fit's seams (`BodyFit.seams`) instead of the columns' axes: P's from its other
+        joint to the joint, D's from the joint to its other joint (each only within
+        `BONE_MAX_ANGLE` of the axis).
         The body file's sections are where the skinning weights change bones, and the bones run
         between the joints; a column's axis runs through the middle of the flesh, which can lean
         away from the bone (the spine lies at the back of the torso and the waist's column,
@@ -609,7 +610,7 @@ def joint_plane_score(points: np.ndarray, prox: np.ndarray, dist: np.ndarray, fi
         if len(sel) == 0 or p not in fit.sections or d not in fit.sections:
             continue
         P, D = fit.sections[p], fit.sections[d]
-        j = fit.joints.get(joint, D.start) if fit.joints else D.start
+        j = fit.seams.get(joint, D.start) if fit.seams else D.start
         along = (j - P.start) @ P.axis
         at_start = np.linalg.norm(D.start - j) <= np.linalg.norm(D.end - j)
         away = D.axis if at_start else -D.axis
@@ -934,10 +935,10 @@ def assign_extremities(points: np.ndarray, member: np.ndarray, fit: BodyFit, t_d
     free = ~member.any(axis=1)
     for k, (name, (parent, joint)) in enumerate(EXTREMITIES.items()):
         shape = fit.extremities.get(name)
-        if shape is None or parent not in fit.sections or joint not in fit.joints:
+        if shape is None or parent not in fit.sections or joint not in fit.seams:
             continue
         s = fit.sections[parent]
         cand = np.flatnonzero((member[:, SECTIONS.index(parent)] | free) & (out < 0)
-                              & ((points - np.asarray(fit.joints[joint], dtype=float)) @ s.axis > 0))
+                              & ((points - np.asarray(fit.seams[joint], dtype=float)) @ s.axis > 0))
         out[cand[shape.distance(points[cand]) <= t_d * shape.width]] = k
     return out

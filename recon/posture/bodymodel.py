@@ -11,7 +11,7 @@ other bodies (`standard_body`). Sources:
   heads are the ground-truth joints), which places some joints differently from Winter's anatomical
   landmarks: the shoulder joint lower and more medial (upper arm 0.155 H rather than 0.186 H), the
   spine joints pelvis (root) 0.53 H, chest (spine01) 0.738 H, neck (neck01) 0.851 H, head 0.908 H,
-  and the spine joints lie behind the torso's axis (`SPINE_BACK`). These fractions are the mean of
+  and the joints lie off the sections' axes and ends (`JOINT_OFFSET`). These fractions are the mean of
   two of the rig's bodies in rest and standing pose; the fit uses them as a start and for joints
   that the surface cannot show (where along a straight limb the elbow is).
 - Radii (half widths and depths of the cross-sections) are rounded from mean adult-male breadths,
@@ -63,12 +63,41 @@ _F = dict(
     foot_height=0.043,       # ankle -> sole
 )
 
-#: The rig's spine joints lie behind the torso's axis (towards the back), as fractions of stature.
-#: The head's is measured from the fitted head column instead (0.011 H on the rig's surfaces): the
-#: mean offset, front-back, of the rig's head joint from the fitted column's axis 0.057 H above the
-#: neck on `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose (0.3 cm
-#: back; the 0.011 H placed it 1.6 cm too far back, on those and over the library alike).
+#: Where the sections meet (`recon.posture.joints.place_seams`, the clustering's joint planes): the
+#: spine's seams lie behind the torso's axis (towards the back), as fractions of stature, where the
+#: rig's spine joints lie on two of its average bodies. The head's is measured from the fitted head
+#: column instead (0.011 H on the rig's surfaces): the mean offset, front-back, of the rig's head
+#: joint from the fitted column's axis 0.057 H above the neck on `paper` scans (k = 1 and 3) of two
+#: of the rig's bodies, standing and a_pose (0.3 cm back; the 0.011 H placed it 1.6 cm too far back,
+#: on those and over the library alike).
 SPINE_BACK = dict(pelvis=0.007, chest=0.045, neck=0.020, head=0.002)
+
+#: Where the rig's joints lie relative to the fitted sections (`recon.posture.joints.offset_joints`,
+#: the reported joints, `recon.model.BodyFit.joints`): joint kind -> ((out, back, along), (out,
+#: back, along)), in the frame of the joint's section (`recon.posture.joints.joint_frame`:
+#: outwards, towards the subject's back, along its axis), as fractions of stature at ``STATURE``,
+#: and their change per unit of ``stature / STATURE - 1``. The joints are first found on the
+#: sections' axes and ends (the pelvis at the waist column's lower end, a hip at its thigh's top, a
+#: knee where thigh and lower leg meet or closing the leg's triangle...); the rig's joints lie off
+#: those points: the spine's behind the torso's axis, the femoral heads behind the thighs' tops,
+#: the wrists outwards of the forearm's axis. And they drift with size: the model's proportions are
+#: one adult's, scaled, while a child's head is relatively larger and its legs shorter, a tall
+#: adult's legs longer (the rig's hip joint at 0.50 of stature on its children, 0.56 on its 2.1 m
+#: adults). Estimated by robust least squares (soft L1 at 2 cm) on the tune corpus (seed 0, 62
+#: bodies; `paper` scans at 10 mm, k = 1 and 3, and 36 of them turned 90 degrees at k = 1), on the
+#: fits with a median joint error up to 6 cm and their joints within 10 cm of the truth.
+JOINT_OFFSET = dict(
+    pelvis=((0.0, 0.0076, 0.0039), (0.0, -0.0046, 0.0556)),
+    chest=((0.0, 0.0390, 0.0101), (0.0, -0.0222, 0.0186)),
+    neck=((0.0, 0.0165, 0.0027), (0.0, -0.0040, 0.0120)),
+    head=((0.0, 0.0029, 0.0064), (0.0, 0.0089, -0.0160)),
+    shoulder=((-0.0026, -0.0055, 0.0049), (-0.0114, 0.0018, 0.0227)),
+    elbow=((0.0031, 0.0032, -0.0005), (0.0003, 0.0043, -0.0016)),
+    wrist=((0.0139, 0.0, -0.0037), (-0.0062, 0.0026, 0.0275)),
+    hip=((0.0035, 0.0176, -0.0014), (-0.0084, 0.0049, 0.0504)),
+    knee=((0.0015, 0.0087, 0.0028), (-0.0117, 0.0103, 0.0943)),
+    ankle=((-0.0024, 0.0086, 0.0009), (0.0162, 0.0105, 0.0135)),
+)
 
 #: Where the chest section meets the waist section, as a fraction of the fitted waist column (pelvis
 #: joint to chest joint), when no crotch is seen (`recon.posture.joints.split_torso`; hips flexed): the
@@ -158,11 +187,12 @@ SHOULDER_CAP = (0.6, 0.6)
 #: bodies 0.9612 -> 0.9617 / 0.9619 / 0.9620; bridging mean 0.448 -> 0.441 / 0.438 / 0.429 %.
 LOWER_LEG_SHAPE = (1.14, 0.877)
 
-#: The rig's hip joints (femoral heads) lie behind and outside the top of the thigh's column, as
-#: fractions of stature: the mean offset from the fitted thigh start to the rig's hip joint on
-#: `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose (4.1 cm back,
-#: 2.2 cm out for a 1.76 m body; sd 1.1 and 1.2 cm). Measured on the posture's frame, so it holds
-#: for a thigh raised or turned.
+#: Where the sections meet (`recon.posture.joints.place_seams`): the hips' seams lie behind and
+#: outside the top of the thigh's column, where the rig's hip joints (femoral heads) lie on two of
+#: its average bodies, as fractions of stature: the mean offset from the fitted thigh start to the
+#: rig's hip joint on `paper` scans (k = 1 and 3) of two of the rig's bodies, standing and a_pose
+#: (4.1 cm back, 2.2 cm out for a 1.76 m body; sd 1.1 and 1.2 cm). Measured on the posture's frame,
+#: so it holds for a thigh raised or turned.
 HIP_OFFSET = dict(back=0.023, out=0.0127)
 
 # radii (a across, b front-back), metres for the 1.75 m body

@@ -1,14 +1,15 @@
 """Hands and feet as sections of the body model (beyond the paper, whose 11 sections have none).
 
 `place_extremities` runs after the paper's fit and leaves it as it is: past each fitted wrist and
-ankle it takes the points that lie beyond the joint along the forearm (lower leg) and nearer to
-that section's model than to any other, and places an elliptic column through them along their
-principal axis (a hand: a flat column past the wrist; a foot: a column from the ankle forward along
-the floor), open at the joint and capped at the fingertips (toes); a small least-squares fit
-(`recon.posture.adjust.fit_section`) moves it onto the points. The clustering gives the column its
-points (`recon.clustering.cluster.assign_extremities`) and the surface stage meshes them on a chart
-of their own (`recon.surface.complete.extremity_charts`); a hand is still scored as its forearm and
-a foot as its lower leg. `--param extremities=False` gives the paper's 11 sections.
+ankle (the fit's seams, `recon.model.BodyFit.seams`) it takes the points that lie beyond the joint
+along the forearm (lower leg) and nearer to that section's model than to any other, and places an
+elliptic column through them along their principal axis (a hand: a flat column past the wrist; a
+foot: a column from the ankle forward along the floor), open at the joint and capped at the
+fingertips (toes); a small least-squares fit (`recon.posture.adjust.fit_section`) moves it onto the
+points. The clustering gives the column its points (`recon.clustering.cluster.assign_extremities`)
+and the surface stage meshes them on a chart of their own
+(`recon.surface.complete.extremity_charts`); a hand is still scored as its forearm and a foot as its
+lower leg. `--param extremities=False` gives the paper's 11 sections.
 """
 
 from __future__ import annotations
@@ -91,9 +92,9 @@ def extremity_points(points: np.ndarray, fit: BodyFit, parent: str, joint: str) 
     ``parent``: beyond the joint along the parent's axis, within `REACH` of it, and nearer to the
     parent's model than to any other fitted section's."""
     s = fit.sections[parent]
-    j = np.asarray(fit.joints[joint], dtype=float)
+    j = np.asarray(fit.seams[joint], dtype=float)
     prox = next(middle for _, dist, _, middle, _ in LIMBS if dist == parent)   # elbow, knee
-    length = float(np.linalg.norm(j - fit.joints[prox])) if prox in fit.joints else s.length
+    length = float(np.linalg.norm(j - fit.seams[prox])) if prox in fit.seams else s.length
     rel = points - j
     near = np.flatnonzero((rel @ s.axis > 0) & (np.einsum("ij,ij->i", rel, rel)
                                                  < (REACH[parent[:-2]] * length) ** 2))
@@ -122,10 +123,10 @@ def place_extremities(points: np.ndarray, fit: BodyFit) -> BodyFit:
     points = np.asarray(points, dtype=np.float64)
     out = {}
     for name, (parent, joint) in EXTREMITIES.items():
-        if parent not in fit.sections or joint not in (fit.joints or {}):
+        if parent not in fit.sections or joint not in (fit.seams or {}):
             continue
         idx = extremity_points(points, fit, parent, joint)
-        shape = extremity_shape(points[idx], np.asarray(fit.joints[joint], dtype=float), name)
+        shape = extremity_shape(points[idx], np.asarray(fit.seams[joint], dtype=float), name)
         if shape is not None:
             out[name] = shape
     return replace(fit, extremities=out)

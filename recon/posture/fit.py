@@ -182,9 +182,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    surfaces: this check cannot see it.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
-   file format's); the sections reported in the `BodyFit` meet
-   where the body file's section labels change, which is not always at a joint: the torso splits
-   into waist and chest at `recon.posture.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
+   file format's), placed off the sections' ends and axes where the rig's lie
+   (`recon.posture.bodymodel.JOINT_OFFSET`); the clustering cuts where the sections meet, at the
+   fit's seams (`recon.posture.joints.place_seams`), not at the joints; the sections reported in the
+   `BodyFit` meet where the body file's section labels change, which is not always at a joint: the
+   torso splits into waist and chest at `recon.posture.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
    column; `recon.posture.joints.split_torso`), the thighs start no higher than `CROTCH_SPLIT` thigh lengths
    above the crotch seen in the points (`recon.posture.joints.split_hips`), the lower legs start
@@ -210,8 +212,8 @@ from .bodymodel import LIMBS, StandardBody, kind_of
 from ..cloud import check_points
 from ..geometry import rotvec
 from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
-from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, shank_ratio, split_hips,
-                     split_knees, split_torso, swap_sides)
+from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, place_seams, shank_ratio,
+                     split_hips, split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
 from ..model import BodyFit, SECTIONS
 from ..params import FitParams
@@ -535,11 +537,12 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
                          f"{100 * params.fit_min_coverage:.0f}%)")
     _check_leg_length(work, fitted, pose.body)
     fitted = centre_neck(work, fitted)
+    seams = place_seams(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
     joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
-    fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), joints, pose.body))
+    fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), seams, pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
                                                                 arm_tolerance=params.fit_arm_size_tolerance))
-    return BodyFit(sections=fitted, joints=joints,
+    return BodyFit(sections=fitted, joints=joints, seams=seams,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
 

@@ -2,21 +2,22 @@
 `recon.posture`).
 
 `front_sign` and `swap_sides` read front and back from the body's shape (feet, knees, hips);
-`place_joints` puts the rig's joints on the fitted sections; `split_torso`, `split_hips`,
-`split_knees` and `joint_caps` make the reported sections meet where the body file's section labels
-change, and `joint_caps` (with `shape_limbs`) gives the upper arms and lower legs the labels'
-cross-sections, deeper front to back than the fit's round columns, and the upper arms a start cap
-over the shoulder; `centre_neck` (before the joints are placed) puts the chest's top between the
-sides of the neck seen in the points, the head and the shoulders following.
+`place_joints` puts the rig's joints on the fitted sections (off their ends and axes,
+`offset_joints`) and `place_seams` the points where the sections meet, where the clustering cuts;
+`split_torso`, `split_hips`, `split_knees` and `joint_caps` make the reported sections meet where
+the body file's section labels change, and `joint_caps` (with `shape_limbs`) gives the upper arms
+and lower legs the labels' cross-sections, deeper front to back than the fit's round columns, and
+the upper arms a start cap over the shoulder; `centre_neck` (before the joints are placed) puts the
+chest's top between the sides of the neck seen in the points, the head and the shoulders following.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, KNEE_SPLIT, LIMBS, LOWER_LEG_SHAPE,
-                        SHOULDER_CAP, SPINE_BACK, TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE,
-                        UPPER_ARM_SHAPE, StandardBody, kind_of)
+from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, JOINT_OFFSET, KNEE_SPLIT, LIMBS,
+                        LOWER_LEG_SHAPE, SHOULDER_CAP, SPINE_BACK, STATURE, TORSO_SPLIT, TORSO_SPLIT_CROTCH,
+                        TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE, StandardBody, kind_of)
 from ..geometry import cross, turn_between, unit
 from ..model import SectionShape
 
@@ -196,11 +197,73 @@ def _fingertip(points, q: SectionShape, body: StandardBody, step: float = 0.03) 
     return float(max(full, h[near][run].max())) if run.any() else full
 
 
-def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, arm_tolerance: float = 0.1) -> dict:
-    """Joint positions from the sections; ``back`` (3,) is the subject's backward direction;
-    ``points`` (n, 3), when given, place the ankles a foot height above the soles; a nearly straight
-    arm measured (shoulder to wrist) more than ``arm_tolerance`` off the model's arm has its elbow
-    placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`)."""
+def place_seams(secs: dict, body: StandardBody, back: np.ndarray, points=None, arm_tolerance: float = 0.1) -> dict:
+    """Where the sections meet, by joint name (`recon.model.BodyFit.seams`): the points the
+    clustering's joint planes, bone directions and the extremities' cuts are taken from.
+
+    They are the joints placed on the sections' ends and axes, the spine's moved behind the torso's
+    axis (`recon.posture.bodymodel.SPINE_BACK`) and the hips behind and outside the thighs' tops
+    (`recon.posture.bodymodel.HIP_OFFSET`) before a straight leg's knee is closed between hip and
+    ankle (`knee_between`).
+
+    Parameters
+    ----------
+    secs : dict of SectionShape
+        The fitted sections.
+    body : StandardBody
+    back : (3,) float
+        The subject's backward direction.
+    points : (n, 3) float, optional
+        When given, the ankles are placed a foot height above the soles and the wrists a hand
+        length before the fingertips seen.
+    arm_tolerance : float
+        A nearly straight arm measured (shoulder to wrist) more than this fraction off the model's
+        arm has its elbow placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`).
+
+    Returns
+    -------
+    dict of str to (3,) float
+    """
+    return _on_sections(secs, body, back, points, arm_tolerance, seam=True)
+
+
+def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, arm_tolerance: float = 0.1,
+                 offsets: dict = JOINT_OFFSET) -> dict:
+    """The joints, by name (`recon.model.BodyFit.joints`): found on the sections' ends and axes as
+    for `place_seams` (without its spine and hip offsets: a straight leg's knee is closed from the
+    thigh's top), then moved to where the rig's joints lie relative to their sections
+    (``offsets``, `offset_joints`).
+
+    Parameters
+    ----------
+    secs : dict of SectionShape
+        The fitted sections.
+    body : StandardBody
+    back : (3,) float
+        The subject's backward direction.
+    points : (n, 3) float, optional
+        When given, the ankles are placed a foot height above the soles and the wrists a hand
+        length before the fingertips seen.
+    arm_tolerance : float
+        A nearly straight arm measured (shoulder to wrist) more than this fraction off the model's
+        arm has its elbow placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`).
+    offsets : dict
+        Joint kind -> ((out, back, along), (out, back, along)) (`recon.posture.bodymodel.JOINT_OFFSET`,
+        `offset_joints`); ``{}`` leaves the joints on the sections.
+
+    Returns
+    -------
+    dict of str to (3,) float
+    """
+    return offset_joints(_on_sections(secs, body, back, points, arm_tolerance, seam=False), secs, back,
+                         body.stature, offsets)
+
+
+def _on_sections(secs: dict, body: StandardBody, back: np.ndarray, points, arm_tolerance: float,
+                 seam: bool) -> dict:
+    """The joints on the sections' ends and axes (`place_joints`); with ``seam``, the spine's moved
+    behind the torso's axis and the hips behind and outside the thighs' tops before the knees are
+    closed (`place_seams`)."""
     j = {}
     soled = set()   # lower legs whose ankle was placed from the detected sole
     tipped = set()  # forearms of nearly straight arms whose wrist was placed from the fingertips
@@ -214,9 +277,10 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
         h = secs["head"]
         j["neck"] = h.start
         j["head"] = h.start + body.length("head_joint") * h.axis
-    for name, frac in SPINE_BACK.items():   # the rig's spine joints lie behind the axis
-        if name in j:
-            j[name] = j[name] + frac * body.stature * back
+    if seam:   # the spine's seams lie behind the torso's axis
+        for name, frac in SPINE_BACK.items():
+            if name in j:
+                j[name] = j[name] + frac * body.stature * back
     for prox, dist, a, b, c in LIMBS:
         if prox in secs:
             j[a] = secs[prox].start
@@ -241,8 +305,8 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
                     seg *= r
                     soled.add(dist)
                 j[c] = q.start + seg * q.axis
-    if "waist" in secs:   # the rig's hip joints lie behind and outside the thighs' tops
-        left = unit(cross(back, secs["waist"].axis))
+    left = unit(cross(back, secs["waist"].axis)) if "waist" in secs else None
+    if seam and left is not None:   # the hips' seams lie behind and outside the thighs' tops
         for side, sign in (("l", 1.0), ("r", -1.0)):
             if f"hip_{side}" in j:
                 j[f"hip_{side}"] = j[f"hip_{side}"] + body.stature * (
@@ -266,6 +330,81 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
             if k is not None:
                 j[b] = k
     return {k: np.asarray(v, dtype=float) for k, v in j.items()}
+
+
+#: The section whose frame carries each joint's offset (`offset_joints`): the torso's joints the
+#: column they end, the shoulders and hips the trunk's, a limb's middle and end joints the section
+#: they end (elbow: upper arm, wrist: forearm, knee: thigh, ankle: lower leg).
+JOINT_FRAME = dict(pelvis="waist", chest="waist", neck="chest", head="head", shoulder="chest", hip="waist",
+                   elbow="upper_arm", wrist="forearm", knee="thigh", ankle="lower_leg")
+
+
+def joint_frame(secs: dict, joint: str, back: np.ndarray) -> np.ndarray | None:
+    """(3, 3) columns: out, back, along, of ``joint``'s section (`JOINT_FRAME`); None without that
+    section or the waist.
+
+    ``along`` is the section's axis; ``back`` the subject's backward direction (3,) with its part
+    along the axis taken out; ``out`` the body's left (right for a joint of the right side; zero
+    for the spine's joints, which lie on the mid-plane) with its parts along the axis and along
+    ``back`` taken out. ``back`` and ``out`` are not normalised: an offset across a limb that
+    points backwards, or sideways, fades with the direction it can no longer be measured in.
+    """
+    sided = joint.endswith(("_l", "_r"))
+    kind = joint[:-2] if sided else joint
+    sec = JOINT_FRAME.get(kind)
+    if sec is None or "waist" not in secs:
+        return None
+    if sided and sec not in ("waist", "chest"):
+        sec += joint[-2:]
+    if sec not in secs:
+        return None
+    ax = secs[sec].axis
+    b = back - ax * float(back @ ax)
+    o = np.zeros(3)
+    if sided:
+        left = unit(cross(back, secs["waist"].axis)) * (1.0 if joint.endswith("_l") else -1.0)
+        o = left - ax * float(left @ ax)
+        nb = float(b @ b)
+        if nb > 1e-12:
+            o = o - b * float(o @ b) / nb
+    return np.column_stack([o, b, ax])
+
+
+def offset_joints(joints: dict, secs: dict, back: np.ndarray, stature: float,
+                  offsets: dict = JOINT_OFFSET) -> dict:
+    """The joints moved from where the sections put them to where the rig's joints lie relative
+    to them: each by ``stature * (a + b * (stature / STATURE - 1))`` along (out, back, along) of
+    its `joint_frame`, ``(a, b)`` = ``offsets[kind]`` (`recon.posture.bodymodel.JOINT_OFFSET`).
+
+    Parameters
+    ----------
+    joints : dict of (3,) float
+        Joint positions, metres.
+    secs : dict of SectionShape
+    back : (3,) float
+        The subject's backward direction.
+    stature : float
+        The fitted body's stature, metres.
+    offsets : dict
+        Joint kind -> ((out, back, along), (out, back, along)): fractions of stature, and their
+        change per unit of ``stature / STATURE - 1``.
+
+    Returns
+    -------
+    dict of (3,) float
+    """
+    out = dict(joints)
+    grow = stature / STATURE - 1.0
+    for name, p in joints.items():
+        kind = name[:-2] if name.endswith(("_l", "_r")) else name
+        if kind not in offsets:
+            continue
+        F = joint_frame(secs, name, back)
+        if F is None:
+            continue
+        a, b = (np.asarray(v, dtype=float) for v in offsets[kind])
+        out[name] = p + stature * (F @ (a + b * grow))
+    return out
 
 
 #: An elbow bent less than this (degrees) is placed the model's upper-arm length from the shoulder
@@ -616,9 +755,9 @@ def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
     return out
 
 
-def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
-    """The reported thigh ends at the knee joint (placed by `knee_between` when the ankle was found
-    from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
+def split_knees(secs: dict, seams: dict, body: StandardBody, drop: float = KNEE_SPLIT) -> dict:
+    """The reported thigh ends at the knee's seam (``seams``: `place_seams`; placed by `knee_between`
+    when the ankle was found from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
     it along the shank, where the body file's labels change (`recon.posture.bodymodel.KNEE_SPLIT`).
 
     Estimated-posture section accuracy, 21 bodies: 0.892 -> 0.898 for the drop (0.894 when the
@@ -630,8 +769,8 @@ def split_knees(secs: dict, joints: dict, body: StandardBody, drop: float = KNEE
         if kind_of(shin) != "lower_leg" or shin not in secs:
             continue
         s = secs[shin]
-        meet = thigh in secs and knee in joints
-        top = joints[knee] if meet else s.start
+        meet = thigh in secs and knee in seams
+        top = seams[knee] if meet else s.start
         if meet:
             out[thigh] = secs[thigh].replace(end=top)
         axis = unit(s.end - top)

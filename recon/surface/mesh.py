@@ -557,9 +557,9 @@ def _child_end(name: str, fit: BodyFit, present) -> list:
     P = fit.sections[name]
     ends = []
     for (p, d), joint in ADJACENT.items():
-        if p != name or d not in present or not fit.joints or joint not in fit.joints:
+        if p != name or d not in present or not fit.seams or joint not in fit.seams:
             continue
-        j = np.asarray(fit.joints[joint], dtype=float)
+        j = np.asarray(fit.seams[joint], dtype=float)
         along = (j - P.start) @ P.axis
         if np.linalg.norm(j - P.start - along * P.axis) <= SIDE_JOINT * float(P.radii.mean()):
             ends.append(1 if along > P.length / 2 else 0)
