@@ -12,7 +12,8 @@ from bodyscan.benchmarks.metrics import is_watertight
 from bodyscan.recon import ReconParams, reconstruct
 from bodyscan.recon.clustering.cluster import assign_extremities
 from bodyscan.recon.posture.extremities import place_extremities
-from bodyscan.recon.surface.closed import grid_surface, radial_field, seen_air, seen_distance
+from bodyscan.recon.surface.closed import grid_surface, radial_field, seen_distance
+from bodyscan.recon.views import seen_air
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
 from bodyscan.recon.surface.mesh import face_areas, model_outward
 from test_pipeline import capsule_body
@@ -188,11 +189,9 @@ def test_seen_distance_is_the_signed_distance_to_a_sphere_and_stops_at_a_hole():
     assert beside.min() > 0.03    # over the hole: beside the mesh, by the hole's radius
 
 
-@pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
-def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
-    """A wall y = 0 with a 3 cm hole seen from -y (parallel, or from a camera 2 m away): a point in
-    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown
-    (over the hole, air when the silhouettes count)."""
+def _wall(camera):
+    """A wall y = 0 on a 5 mm grid with a 3 cm hole, seen from -y: parallel (``camera`` None) or
+    from the point ``camera``; (points (n, 3), view directions (n, 3))."""
     g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
     g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
     pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
@@ -201,6 +200,15 @@ def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
     else:
         vd = np.asarray(camera) - pts
         vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    return pts, vd
+
+
+@pytest.mark.parametrize("camera", [None, (0.0, -2.0, 0.1)])
+def test_seen_air_is_the_depth_in_front_of_the_seen_surface(camera):
+    """A wall y = 0 with a 3 cm hole seen from -y (parallel, or from a camera 2 m away): a point in
+    front of the wall is air by its depth; behind it, not; beside the wall or over the hole, unknown
+    (over the hole, air when the silhouettes count)."""
+    pts, vd = _wall(camera)
     at = np.array([[0.02, -0.03, 0.01], [0.02, 0.03, 0.01], [0.5, -0.03, 0.0], [-0.05, -0.01, -0.05]])
     air = seen_air(pts, vd, None, at, 0.005)
     if camera is None:
@@ -219,14 +227,7 @@ def test_beside_is_the_distance_to_the_silhouette_with_its_gaps_closed(camera):
     at least the picture's margin far beside the wall."""
     from bodyscan.recon.views import Views
 
-    g = np.indices((41, 41)).reshape(2, -1).T * 0.005 - 0.1
-    g = g[np.abs(g + 0.05).max(axis=1) > 0.015]
-    pts = np.column_stack([g[:, 0], np.zeros(len(g)), g[:, 1]])
-    if camera is None:
-        vd = np.tile([0.0, -1.0, 0.0], (len(pts), 1))
-    else:
-        vd = np.asarray(camera) - pts
-        vd /= np.linalg.norm(vd, axis=1, keepdims=True)
+    pts, vd = _wall(camera)
     cams = Views(pts, vd, None, 0.005)
     at = np.array([[-0.05, -0.01, -0.05], [0.0025, -0.03, 0.0025], [0.5, -0.03, 0.0], [0.0, 0.05, 0.0]])
     scale = 1.0 if camera is None else 2.0 / 1.97     # the perspective image is at the wall's distance

@@ -236,17 +236,8 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
 
     Parameters
     ----------
-    secs : dict of SectionShape
-        The fitted sections.
-    body : StandardBody
-    back : (3,) float
-        The subject's backward direction.
-    points : (n, 3) float, optional
-        When given, the ankles are placed a foot height above the soles and the wrists a hand
-        length before the fingertips seen.
-    arm_tolerance : float
-        A nearly straight arm measured (shoulder to wrist) more than this fraction off the model's
-        arm has its elbow placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`).
+    secs, body, back, points, arm_tolerance
+        As for `place_seams`.
     offsets : dict
         Joint kind -> ((out, back, along), (out, back, along)) (`recon.posture.bodymodel.JOINT_OFFSET`,
         `offset_joints`); ``{}`` leaves the joints on the sections.

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..views import Views, seen_air  # noqa: F401  (seen_air: re-exported for the tests)
+from ..views import Views
 
 
 def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=None):
@@ -418,7 +418,6 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     corner's distance, ``sqrt(3)`` steps, plus the turn of the normals between neighbouring vertices).
     """
     from scipy.ndimage import maximum_filter1d
-    from scipy.spatial import cKDTree
 
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
@@ -436,19 +435,10 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     for ax in range(3):
         near = maximum_filter1d(near, 2 * r + 1, axis=ax, mode="constant")
     gc = np.argwhere(near) * 2
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
-    vn = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
     reach_m = np.hypot(band, BAND_BLEND) * spacing
     margin = np.sqrt(3) * voxel
-    d0, i0 = cKDTree(vertices[used]).query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
-    ok = np.isfinite(d0)
-    gc, d0, i0 = gc[ok], d0[ok], i0[ok]
-    along = -np.einsum("mj,mj->m", lo + voxel * gc - vertices[used][i0], vn[i0])    # positive inside
-    beside = np.sqrt(np.maximum(d0 ** 2 - along ** 2, 0))
+    # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
+    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin)
     slack = SLACK * margin
     keep = ((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
             & (beside < BAND_BLEND * spacing + slack))
