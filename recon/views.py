@@ -82,8 +82,7 @@ class Views:
             shape = tuple(ij.max(axis=0) + 2)
             z = np.full(shape, -np.inf)
             np.maximum.at(z, (ij[:, 0], ij[:, 1]), depth)
-            seen = np.isfinite(z)
-            near = np.where(seen, maximum_filter(z, size=3, mode="nearest"), -np.inf)   # never in front of a neighbour
+            near = maximum_filter(z, size=3, mode="nearest")   # never in front of a neighbour
             self.heads.append((project, o, shape, z, near))
             self._uv.append(uv)
         self._nearest = [None] * len(self.heads)
@@ -99,8 +98,9 @@ class Views:
     def air(self, at: np.ndarray) -> np.ndarray:
         """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
         saw (its depth toward the camera beyond the nearest seen point of its pixel and the eight
-        around it); positive is air the camera looked through, -inf where no camera saw a point
-        along that line (unknown; beside the silhouettes: `beside`)."""
+        around it: a pixel finer than the scan's rows holds no point of its own); positive is air
+        the camera looked through, -inf where no camera saw a point along that line or the eight
+        around it (unknown; beside the silhouettes: `beside`)."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), -np.inf)
         for i, head in enumerate(self.heads):
