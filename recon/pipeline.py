@@ -454,7 +454,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         cv, cf, face_section = closed_surface(mesh_points, solids, spacing, sp.close_voxel,
                                               sp.close_cell, sp.close_envelope,
                                               sp.close_band, (vertices, faces, face_section),
-                                              view, sp.close_carve, sp.close_background)
+                                              view, sp.close_carve, sp.close_background,
+                                              sp.close_smooth)
         vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start

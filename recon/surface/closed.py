@@ -305,7 +305,7 @@ SLACK = 1.0
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
-                   view=None, carve: float = 1.0, background: float = 0.5):
+                   view=None, carve: float = 1.0, background: float = 0.5, smooth: int = 3):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching cubes.
 
@@ -343,6 +343,10 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         image of its points, the gaps between neighbours closed over ``CLOSE`` spacings) are
         outside too, the surface placed this far beside the outermost points (0 = off;
         `recon.views.Views.beside`).
+    smooth : int
+        Taubin's smoothing steps (each a shrink and an inflate; 0 = off) on the marching-cubes
+        surface: they take out the grid's facets (a face's normal off the smooth surface's by
+        up to the angle of one grid step) without shrinking it.
 
     Returns
     -------
@@ -405,6 +409,13 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
+    if smooth > 0 and len(faces):
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        # lambda, mu: Taubin's pass band k = 1 / lambda + 1 / mu = 0.1 (no shrinking below it)
+        trimesh.smoothing.filter_taubin(mesh, 0.5, 1.0 / (2.0 - 0.1), iterations=2 * int(smooth))
+        vertices = np.asarray(mesh.vertices)
     return vertices, faces, face_label.astype(np.int8)
 
 
