@@ -63,7 +63,8 @@ def register(sub) -> None:
                         "repeatable")
     p.add_argument("--metric", action="append", default=[], metavar="NAME=VALUE",
                    help="metric setting: spurious_angle_deg (30), bridging_distance_m (0.005), "
-                        "n_samples (50000), seen_radius_m (0.015), seed (0), oriented (true), "
+                        "n_samples (50000), seen_radius_m (0.015), exterior_rays (128: the recalls "
+                        "count the outer surface; 0: every true triangle), seed (0), oriented (true), "
                         "backend (auto/open3d/numpy); repeatable")
     p.add_argument("--seed", type=int, default=0, help="scan seed (noise, outliers, misalignment) (default 0)")
     p.add_argument("--jobs", type=int, default=min(2, os.cpu_count() or 1),

@@ -60,6 +60,12 @@ class MetricParams:
         distance, metres. 15 mm is more than half the widest stripe spacing of the presets (10 mm),
         so a surface the scanner swept is seen everywhere, yet far below the size of the holes
         that matter (occluded armpits, inner thighs, soles: several centimetres).
+    exterior_rays : int
+        The recalls and Chamfer distance count the body's outer surface: the true triangles that
+        a ray from outside reaches, tried along this many directions (`exterior_faces`). A body
+        mesh can hold surface no ray from outside reaches (the mouth's cavity behind closed lips,
+        skin pressed into skin), which no scanner sees and no reconstruction of the outside
+        should hold. 0 counts every triangle.
     seed : int
         Seed of the surface samples.
     backend : {"auto", "open3d", "numpy"}
@@ -78,6 +84,8 @@ class MetricParams:
         metadata={"help": "area-uniform samples drawn on each surface", "unit": "", "range": (100, 10000000)})
     seen_radius_m: float = field(default=0.015,
         metadata={"help": "a true-surface sample is seen when a scan point lies within this", "unit": "m", "range": (1e-05, 1)})
+    exterior_rays: int = field(default=128,
+        metadata={"help": "rays per true triangle that find the body's outer surface (what some ray from outside reaches; 0: every triangle)", "unit": "", "range": (0, 100000)})
     seed: int = field(default=0,
         metadata={"help": "seed of the surface samples", "unit": "", "range": (0, None)})
     backend: str = field(default="auto",
@@ -416,6 +424,47 @@ class SurfaceIndex:
 # ground truth
 
 
+def exterior_faces(vertices: np.ndarray, faces: np.ndarray, n_rays: int = 128) -> np.ndarray:
+    """Which triangles a ray from outside reaches: the mesh's outer surface.
+
+    From each triangle's centroid (10 micrometres off it, outward), rays go along ``n_rays``
+    directions spread evenly over the sphere (a Fibonacci lattice), those more than 5 degrees
+    above the triangle's plane on its outer side; a triangle is outer when one of them leaves
+    the mesh without a hit (Embree). A pocket no ray leaves (a mouth behind closed lips) and
+    surface pressed into other surface are not.
+
+    Parameters
+    ----------
+    vertices : (V, 3) float
+    faces : (F, 3) int
+        Outward winding.
+    n_rays : int
+        Directions tried per triangle (0: every triangle is outer).
+
+    Returns
+    -------
+    outer : (F,) bool
+    """
+    outer = np.ones(len(faces), dtype=bool)
+    if n_rays <= 0 or len(faces) == 0:
+        return outer
+    from bodyscan.simulator.raycast import RayCaster
+
+    normal, area = face_normals(vertices, faces)
+    outer = ~(area > 0)          # degenerate triangles: no outward side to test, kept
+    centre = vertices[faces].mean(axis=1) + 1e-5 * normal
+    k = np.arange(n_rays) + 0.5
+    z = 1 - 2 * k / n_rays
+    phi = np.pi * (1 + 5 ** 0.5) * k
+    dirs = np.column_stack([np.sqrt(1 - z ** 2) * np.cos(phi), np.sqrt(1 - z ** 2) * np.sin(phi), z])
+    caster = RayCaster(vertices, faces)
+    for d in dirs:
+        todo = np.flatnonzero(~outer & (normal @ d > np.sin(np.radians(5))))
+        if len(todo):
+            outer[todo[~caster.occluded(centre[todo], d[None])]] = True
+    return outer
+
+
 @dataclass(eq=False)
 class GroundTruth:
     """A ground-truth body prepared for scoring (built once per body and reused for every mesh).
@@ -430,9 +479,11 @@ class GroundTruth:
     joints : dict of str to (3,) float
     index : SurfaceIndex
     samples : (m, 3) float
-        Area-uniform samples of the true surface.
+        Area-uniform samples of the true outer surface (`exterior_faces`).
     sample_faces : (m,) int
     params : MetricParams
+    exterior : (F,) bool
+        The triangles of the outer surface.
     """
 
     vertices: np.ndarray
@@ -443,6 +494,7 @@ class GroundTruth:
     samples: np.ndarray
     sample_faces: np.ndarray
     params: MetricParams
+    exterior: np.ndarray = None
     name: str = ""
     _mesh: object = field(default=None, repr=False)
 
@@ -462,10 +514,11 @@ class GroundTruth:
         v = np.asarray(vertices, dtype=np.float64)
         f = np.asarray(faces, dtype=np.int64)
         sec = np.zeros(len(f), np.int64) if face_section is None else np.asarray(face_section, np.int64)
-        samples, sfid = sample_surface(v, f, params.n_samples, params.seed + 1)
+        outer = exterior_faces(v, f, params.exterior_rays)
+        samples, sfid = sample_surface(v, f[outer], params.n_samples, params.seed + 1)
         return cls(vertices=v, faces=f, face_section=sec, joints=dict(joints or {}),
-                   index=SurfaceIndex(v, f, backend=params.backend), samples=samples, sample_faces=sfid,
-                   params=params, name=name)
+                   index=SurfaceIndex(v, f, backend=params.backend), samples=samples,
+                   sample_faces=np.flatnonzero(outer)[sfid], params=params, exterior=outer, name=name)
 
     @property
     def mesh(self):
@@ -613,7 +666,8 @@ def accuracy_completeness(vertices, faces, truth: GroundTruth, params: MetricPar
     exact distance to the other surface is computed.
 
     - ``precision@T``: fraction of mesh samples within T of the true surface;
-    - ``recall_full@T``: fraction of true samples within T of the mesh;
+    - ``recall_full@T``: fraction of true samples (the outer surface, `exterior_faces`) within T
+      of the mesh;
     - ``recall_seen@T``: the same over true samples the scanner saw (``seen``, see
       `GroundTruth.seen`), i.e. what a method could have recovered from the points;
     - ``recall_unseen@T``: the same over the true samples the scanner did not see (what a method

@@ -8,8 +8,8 @@ import trimesh
 
 from bodyscan.benchmarks import BenchError
 from bodyscan.benchmarks.metrics import (
-    GroundTruth, MetricParams, SurfaceIndex, closest_point_on_triangles, face_normals,
-    joint_errors, sample_surface, score_mesh, section_accuracy,
+    GroundTruth, MetricParams, SurfaceIndex, closest_point_on_triangles, exterior_faces,
+    face_normals, joint_errors, sample_surface, score_mesh, section_accuracy,
 )
 
 PARAMS = MetricParams(n_samples=20_000)
@@ -189,6 +189,22 @@ def test_offset_sphere_chamfer_equals_the_offset(sphere):
     assert row["precision@10mm"] == 1
     row = score_mesh(sphere.vertices * (0.4 + 0.007) / 0.4, sphere.faces, sphere)
     assert row["precision@5mm"] == 0 and row["recall_full@5mm"] == 0 and row["fscore_full@10mm"] == 1
+
+
+def test_surface_no_ray_from_outside_reaches_is_not_counted():
+    """A sphere (r 0.4 m) holding a sealed pocket (a sphere of r 0.1 m inside it, like the mouth's
+    cavity behind closed lips): the pocket is not outer surface, and the outer sphere alone recalls
+    all of the truth (counting the pocket, it would recall 0.4^2 / (0.4^2 + 0.1^2) = 94 %)."""
+    outer = trimesh.creation.icosphere(subdivisions=4, radius=0.4)
+    pocket = trimesh.creation.icosphere(subdivisions=3, radius=0.1)
+    v = np.concatenate([outer.vertices, pocket.vertices])
+    f = np.concatenate([outer.faces, pocket.faces + len(outer.vertices)])
+    found = exterior_faces(v, f)
+    assert found[:len(outer.faces)].all() and not found[len(outer.faces):].any()
+    truth = GroundTruth.from_arrays(v, f, params=PARAMS)
+    assert score_mesh(outer.vertices, outer.faces, truth)["recall_full@5mm"] == 1
+    every = GroundTruth.from_arrays(v, f, params=MetricParams(n_samples=20_000, exterior_rays=0))
+    assert score_mesh(outer.vertices, outer.faces, every)["recall_full@5mm"] == pytest.approx(0.941, abs=0.01)
 
 
 def test_translated_sphere_chamfer_is_half_the_shift(sphere):
