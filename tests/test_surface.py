@@ -403,6 +403,30 @@ def test_peel_keeps_the_steep_flanks_the_camera_saw():
     assert S.face_areas(P, seen).sum() > 0.8 * 2 * np.pi * R * 0.3        # most of the tube
 
 
+def test_chart_edge_limit_keeps_unseen_rims_up_to_hull_edge_min():
+    # a cylinder (R 5 cm) scanned front and rear on a 5 mm grid: each camera's image stops 2.5 mm
+    # inside the silhouette, so the rims between the two images are 3.1 cm wide and unseen. An
+    # edge limit of 4 spacings (2 cm, a hand's or a foot's chart) leaves them open; at least
+    # hull_edge_min (4 cm), as on a 1 cm scan, they are closed by faces on the surface
+    R = 0.05
+    x, z = np.meshgrid(np.linspace(-0.0475, 0.0475, 20), np.arange(0, 0.2, 0.005))
+    x, z = x.ravel(), z.ravel()
+    y = np.sqrt(R ** 2 - x ** 2)
+    P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
+    vd = np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
+    front = vd[:, 1] < 0
+    shape = SectionShape("foot_l", [0, 0, 0], [0, 0, 0.2], [R, R], [1, 0, 0], closed=(False, False))
+    spacings = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0, hull_edge_min=0.0), view_dir=vd)
+    floor = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0), view_dir=vd)
+    rim = lambda f: f[front[f].any(axis=1) & ~front[f].all(axis=1)]
+    assert len(rim(spacings)) == 0                                      # the rims stay open
+    assert len(rim(floor)) > 2 * 0.9 * 0.2 / 0.005                      # both rims closed along z
+    assert S.max_edge_length(P, floor).max() <= SurfaceParams().hull_edge_min
+    c = P[floor].mean(axis=1)
+    assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.003                # chords of the cylinder
+    assert S.face_areas(P, floor).sum() > 0.97 * 2 * np.pi * R * 0.195    # the whole tube
+
+
 def test_rejoin_puts_left_out_points_back_with_short_triangles():
     # a tube whose faces around a band of points were removed (as the peel or the air rules do):
     # the band's points come back in short triangles on the tube, none repeating a kept face
