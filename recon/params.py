@@ -283,9 +283,9 @@ class SurfaceParams:
         The column and cap projections overlap by this many mean radii along the axis
         (paper 3.3, width not given).
     max_edge_factor : float
-        Triangles with a 3D edge longer than this times the section's median point spacing are
-        removed. 0 keeps every triangle, as the paper does: holes in the data are covered by a
-        few large triangles (paper 4.2).
+        Triangles with a 3D edge longer than this times the section's median point spacing (and
+        than ``hull_edge_min``) are removed. 0 keeps every triangle, as the paper does: holes in
+        the data are covered by a few large triangles (paper 4.2).
     hull_edge_factor : float
         Delaunay triangulates the convex hull of the projected points: triangles on the
         triangulation's boundary with a 3D edge longer than this times the median spacing are
@@ -497,15 +497,16 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
-    tilt_cos: float = field(default=0.6, metadata={
+    tilt_cos: float = field(default=0.7, metadata={
         "help": "tilted covers: a long triangle whose normal has a mean |cosine| below this with the "
                 "normals estimated at its vertices is removed (0 = off)", "unit": "", "range": (0.0, 1.0)})
     tilt_min_edge: float = field(default=2.5, metadata={
         "help": "the tilt rule tests only triangles with an edge longer than this", "unit": "spacings",
         "range": (0, 1000)})
     hull_edge_min: float = field(default=0.04, metadata={
-        "help": "the boundary peel (hull_edge_factor) never removes triangles shorter than this: "
-                "dense scans keep their seen surface across small gaps (0 = spacings alone)",
+        "help": "the boundary peel (hull_edge_factor) and a chart's edge limit (max_edge_factor, "
+                "far_max_edge) never remove triangles shorter than this: dense scans keep their seen "
+                "surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
     peel_same_side: float = field(default=0.9, metadata={
         "help": "the peel measures a triangle seen from one side (mean view direction at least this "
@@ -531,7 +532,8 @@ class SurfaceParams:
         "help": "meshed points within this of a far part join its chart", "unit": "spacings",
         "range": (0.0, None)})
     far_max_edge: float = field(default=4.0, metadata={
-        "help": "longer triangles (as their camera saw them) are left out of the far parts' charts (0 = no limit)",
+        "help": "longer triangles (as their camera saw them; at least hull_edge_min) are left out of "
+                "the charts of the hands, feet and far parts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     far_hand_spacing: float = field(default=0.0075, metadata={
         "help": "hands are meshed as range images on scans with a median spacing up to this, else "

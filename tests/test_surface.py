@@ -381,17 +381,24 @@ def test_view_edge_length_is_the_gap_the_camera_saw():
     assert np.allclose(S.view_edge_length(P, f, front, stretch=1.5), S.max_edge_length(P, f) / 1.5)
 
 
+def front_rear_cylinder(R, x, z):
+    """Points (2m, 3) of the cylinder of radius ``R`` about the z axis that parallel cameras in
+    front (-y) and behind (+y) sample on the grid of columns ``x`` and rows ``z``, and their unit
+    view directions (2m, 3)."""
+    x, z = np.meshgrid(x, z)
+    x, z = x.ravel(), z.ravel()
+    y = np.sqrt(R ** 2 - x ** 2)
+    P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
+    return P, np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
+
+
 def test_peel_keeps_the_steep_flanks_the_camera_saw():
     # a cylinder scanned from front and back by parallel projection: columns 6 mm apart across
     # the view, rows 2 mm apart along the axis (median spacing 2 mm, peel limit 8 mm). Toward the
     # silhouettes the columns are more than 8 mm apart in 3D: a 3D peel eats the flanks through
     # the hull's boundary; measured as the camera saw them (6 mm) they stay, on the cylinder
     R = 0.05
-    x, z = np.meshgrid(np.arange(-0.048, 0.0481, 0.006), np.arange(0, 0.3, 0.002))
-    x, z = x.ravel(), z.ravel()
-    y = np.sqrt(R ** 2 - x ** 2)
-    P = np.concatenate([np.column_stack([x, -y, z]), np.column_stack([x, y, z])])
-    vd = np.repeat([[0, -1.0, 0], [0, 1.0, 0]], len(x), axis=0)
+    P, vd = front_rear_cylinder(R, np.arange(-0.048, 0.0481, 0.006), np.arange(0, 0.3, 0.002))
     shape = SectionShape("upper_arm_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
     params = SurfaceParams(hull_edge_min=0.0, peel_stretch=3.0)    # flanks up to 2.4 cm in 3D
     flat = S.section_surface(P, shape, params)
@@ -401,6 +408,26 @@ def test_peel_keeps_the_steep_flanks_the_camera_saw():
     c = P[seen].mean(axis=1)
     assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.001                # on the surface (chords)
     assert S.face_areas(P, seen).sum() > 0.8 * 2 * np.pi * R * 0.3        # most of the tube
+
+
+def test_chart_edge_limit_keeps_unseen_rims_up_to_hull_edge_min():
+    # a cylinder (R 5 cm) scanned front and rear on a 5 mm grid: each camera's image stops 2.5 mm
+    # inside the silhouette, so the rims between the two images are 3.1 cm wide and unseen. An
+    # edge limit of 4 spacings (2 cm, a hand's or a foot's chart) leaves them open; at least
+    # hull_edge_min (4 cm), as on a 1 cm scan, they are closed by faces on the surface
+    R = 0.05
+    P, vd = front_rear_cylinder(R, np.linspace(-0.0475, 0.0475, 20), np.arange(0, 0.2, 0.005))
+    front = vd[:, 1] < 0
+    shape = SectionShape("foot_l", [0, 0, 0], [0, 0, 0.2], [R, R], [1, 0, 0], closed=(False, False))
+    spacings = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0, hull_edge_min=0.0), view_dir=vd)
+    floor = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0), view_dir=vd)
+    rim = lambda f: f[front[f].any(axis=1) & ~front[f].all(axis=1)]
+    assert len(rim(spacings)) == 0                                      # the rims stay open
+    assert len(rim(floor)) > 2 * 0.9 * 0.2 / 0.005                      # both rims closed along z
+    assert S.max_edge_length(P, floor).max() <= SurfaceParams().hull_edge_min
+    c = P[floor].mean(axis=1)
+    assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.003                # chords of the cylinder
+    assert S.face_areas(P, floor).sum() > 0.97 * 2 * np.pi * R * 0.195    # the whole tube
 
 
 def test_rejoin_puts_left_out_points_back_with_short_triangles():

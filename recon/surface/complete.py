@@ -134,7 +134,9 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         Parts with fewer points are outliers and stay out.
     max_edge : float
         Spacings: longer triangles are left out of these charts (a hand's or a foot's points are
-        few across its features: long triangles there span fingers and toes).
+        few across its features: long triangles there span fingers and toes), but never shorter
+        than ``hull_edge_min`` (the chart's trim, `recon.surface.mesh.section_surface`: the rims
+        the cameras left unseen are as wide on a dense scan).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
 

@@ -396,11 +396,13 @@ def _trim(points: np.ndarray, faces: np.ndarray, view_dir, params: SurfaceParams
     """``faces`` (k, 3) of a chart's Delaunay triangulation without its hull's long slivers (the
     boundary peel, ``hull_edge_factor`` / ``hull_edge_min``) and, with ``max_edge_factor`` or
     ``cover_max_edge``, without its long triangles; lengths as the camera saw them
-    (`view_edge_length`)."""
+    (`view_edge_length`). Neither limit removes a triangle shorter than ``hull_edge_min``: what the
+    cameras left unseen between their samples (the flanks of a foot along the view, the rims of
+    a hand) is as wide on a dense scan as on a coarse one."""
     hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side, params.peel_stretch)
     faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
-    limit = np.inf if params.max_edge_factor <= 0 else params.max_edge_factor * spacing
+    limit = np.inf if params.max_edge_factor <= 0 else max(params.max_edge_factor * spacing, params.hull_edge_min)
     if params.cover_max_edge > 0:
         limit = min(limit, max(params.cover_max_edge, hull_limit))
     if np.isfinite(limit) and len(faces):
