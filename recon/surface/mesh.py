@@ -547,7 +547,10 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
             ref /= np.maximum(length, 1e-300)[:, None]
     else:
         ref = np.zeros_like(normal)
-    model = unclear if model_weight <= 0 else np.ones(len(faces), dtype=bool)
+    model = unclear
+    if model_weight > 0:   # the model can overturn the view only where |cos| to it is under the weight
+        area2 = np.einsum("ij,ij->i", normal, normal)
+        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < model_weight ** 2 * area2)
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(model & (face_section == j))
         if len(sel) and name in fit.sections:
