@@ -451,6 +451,16 @@ class SurfaceParams:
         ``tilt_cos`` with its vertices' normals stands across the surface the data show (a cover
         spanning a curved hole, a rim face across a thin part, fingers joined across their gaps):
         the paper's spurious surface, which the data do not support. It is removed.
+    orient_model_weight : float
+        Orientation (paper: none, the sensor's side alone, ``0``; ``proposed`` only): a triangle
+        faces the side of its vertices' mean viewing direction (unit) plus this times the section
+        model's outward direction at its centroid (`recon.surface.mesh.orient_faces`). A triangle
+        turned nearly edge-on to the camera that saw its corners (a limb's flank at a grazing view,
+        a cover across the strip neither camera sees) cannot be told outward from inward by that
+        camera: the small tilt that decides is the noise's or the triangulation's, and half such
+        triangles came out flipped. With weight ``w`` the model decides where the triangle turns
+        more than ``1 / w`` times as much toward or away from the model's outward direction as
+        toward or away from the camera. (chosen)
     """
 
     seam_overlap: float = field(default=0.6,  # paper 3.3, radians
@@ -503,6 +513,10 @@ class SurfaceParams:
     tilt_min_edge: float = field(default=2.5, metadata={
         "help": "the tilt rule tests only triangles with an edge longer than this", "unit": "spacings",
         "range": (0, 1000)})
+    orient_model_weight: float = field(default=0.5, metadata={
+        "help": "orientation: a triangle faces its vertices' viewing direction plus this times the "
+                "model's outward direction (0 = the view alone, as the paper)", "unit": "",
+        "range": (0.0, 1000.0)})
     hull_edge_min: float = field(default=0.04, metadata={
         "help": "the boundary peel (hull_edge_factor) and a chart's edge limit (max_edge_factor, "
                 "far_max_edge) never remove triangles shorter than this: dense scans keep their seen "
@@ -997,6 +1011,7 @@ PAPER = {
     "adopt_unlabeled": False, "refine_adjacent": False,
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0, "tilt_cos": 0.0,
+    "orient_model_weight": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "far_view": False,
     "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0, "cover_max_edge": 0.0,

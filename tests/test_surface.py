@@ -126,6 +126,26 @@ def test_orientation_follows_view_dir():
         assert n @ np.array(vd) > 0
 
 
+def test_orientation_of_a_face_edge_on_to_its_camera_follows_the_model():
+    # a thigh column along z, radius 0.1; a triangle on its +x flank, seen edge-on from the camera
+    # at +y (view_dir +y) and tilted slightly away from it: the view alone turns it inward
+    fit = BodyFit(sections={"thigh_l": SectionShape("thigh_l", [0, 0, 0], [0, 0, 1], [0.1, 0.1], [1, 0, 0])},
+                  joints={})
+    tilt = 0.1                                         # the normal is (1, -tilt, 0), outward
+    P = np.array([[0.1, 0, 0.4], [0.1 + tilt * 0.02, 0.02, 0.4], [0.1, 0, 0.45]])
+    sec = np.array([SECTIONS.index("thigh_l")], np.int8)
+    vd = np.array([0, 1.0, 0])
+
+    def normal(w):
+        p = P[S.orient_faces(P, np.array([[0, 1, 2]]), sec, fit, vd, model_weight=w)[0]]
+        n = np.cross(p[1] - p[0], p[2] - p[0])
+        return n / np.linalg.norm(n)
+
+    assert normal(0.0)[0] < 0                          # the paper's rule: toward the camera, inward
+    assert normal(0.5)[0] > 0.99                       # with the model: outward
+    assert normal(0.05)[0] < 0                         # a weight under the tilt: the camera decides
+
+
 def test_small_section_is_skipped_with_a_warning():
     P = np.vstack([capsule_points(n=800), [[1.0, 1.0, 1.0], [1.01, 1.0, 1.0], [1.0, 1.01, 1.0]]])
     fit = BodyFit(sections={

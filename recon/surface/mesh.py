@@ -518,13 +518,18 @@ def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
 
 
 def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
-                 view_dir: np.ndarray | None = None, min_agreement: float = 0.5) -> np.ndarray:
+                 view_dir: np.ndarray | None = None, min_agreement: float = 0.5,
+                 model_weight: float = 0.0) -> np.ndarray:
     """Faces (k, 3) with their winding flipped where needed so that normals point outward.
 
     The outward side is the one the sensor saw: the mean viewing direction of the face's vertices
     (``view_dir`` (n, 3) or (3,), unit, toward the camera) when it is clear (length at least
     ``min_agreement``, i.e. the vertices were seen from about the same side), otherwise the
-    model's outward direction at the face's centroid.
+    model's outward direction at the face's centroid. With ``model_weight`` w > 0, a clear face
+    faces the side of the unit viewing direction plus w times the model's outward direction:
+    the model decides where the face turns more than 1 / w times as much toward or away from it
+    as toward or away from the camera (a face nearly edge-on to its camera, whose small tilt
+    toward it is noise; ``SurfaceParams.orient_model_weight``).
     """
     faces = faces.copy()
     if len(faces) == 0:
@@ -536,16 +541,23 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
         vd = np.asarray(view_dir, dtype=float)
         if vd.ndim == 2:  # the sum of the three directions: 3 times their mean
             ref = vd[faces[:, 0]] + vd[faces[:, 1]] + vd[faces[:, 2]]
-            unclear = np.einsum("ij,ij->i", ref, ref) < (3 * min_agreement) ** 2
         else:
             ref = np.repeat(vd[None, :], len(faces), axis=0)
-            unclear = np.full(len(faces), float(vd @ vd) < min_agreement ** 2)
+        length = np.sqrt(np.einsum("ij,ij->i", ref, ref))
+        unclear = length < (3 if vd.ndim == 2 else 1) * min_agreement
+        if model_weight > 0:
+            ref /= np.maximum(length, 1e-300)[:, None]
     else:
         ref = np.zeros_like(normal)
+    model = unclear
+    if model_weight > 0:   # the model can overturn the view only where |cos| to it is under the weight
+        area2 = np.einsum("ij,ij->i", normal, normal)
+        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < model_weight ** 2 * area2)
     for j, name in enumerate(SECTIONS):
-        sel = np.flatnonzero(unclear & (face_section == j))
+        sel = np.flatnonzero(model & (face_section == j))
         if len(sel) and name in fit.sections:
-            ref[sel] = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
+            out = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
+            ref[sel] = np.where(unclear[sel, None], out, ref[sel] + model_weight * out)
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
     return faces
@@ -927,7 +939,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         if view_dir is not None:
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
-    faces = orient_faces(points, faces, sec, fit, view_dir)
+    faces = orient_faces(points, faces, sec, fit, view_dir,
+                         model_weight=params.orient_model_weight if drop_inner else 0.0)
     return faces, sec, skipped
 
 
