@@ -518,9 +518,8 @@ class SurfaceParams:
                 "model's outward direction (0 = the view alone, as the paper)", "unit": "",
         "range": (0.0, 1000.0)})
     hull_edge_min: float = field(default=0.04, metadata={
-        "help": "the boundary peel (hull_edge_factor) and a chart's edge limit (max_edge_factor, "
-                "far_max_edge) never remove triangles shorter than this: dense scans keep their seen "
-                "surface across small gaps (0 = spacings alone)",
+        "help": "the boundary peel and the charts' edge limits never remove triangles shorter "
+                "than this: dense scans keep their surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
     peel_same_side: float = field(default=0.9, metadata={
         "help": "the peel measures a triangle seen from one side (mean view direction at least this "
