@@ -804,7 +804,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
                for _, r in failed.iterrows()]
     if pictures:
         body, preset, k = picture_case
-        md += ["", f"## Reconstructions of {body} ({preset}, k = {k:g})", "",
+        md += ["", f"## Reconstructions of {Path(body).stem} ({preset}, k = {k:g})", "",
                "Sections in colour (peers: the true section of the nearest surface); spurious "
                "(normal more than the threshold from the true one) or bridging triangles in red, "
                "as in the paper's Fig. 13. Close-ups: a slab around each armpit and the crotch.", ""]
@@ -824,7 +824,7 @@ def _pictures(meshes: dict, case, out: Path, progress) -> list:
         _log(f"bodyscan bench: no pictures ({exc})", progress)
         return []
     done = []
-    body = case[0]
+    body = Path(case[0]).stem     # a body file's name, not its path
     for method in method_order(meshes):
         mesh = meshes[method]
         red = np.zeros(len(mesh["faces"]), bool)

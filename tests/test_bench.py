@@ -6,6 +6,7 @@ from dataclasses import replace
 import numpy as np
 import pandas as pd
 import pytest
+import trimesh
 
 from bodyscan.benchmarks import BenchError
 from bodyscan.benchmarks.bench import METHODS, BenchConfig, evaluate, run_bench, score
@@ -227,3 +228,17 @@ def test_skipped_peers_are_named_with_their_reason(monkeypatch):
     assert skipped["poisson"].startswith("not asked for")
     text = bench.skipped_text(skipped)
     assert "poisson, poisson-trimmed, alpha (not asked for" in text and "spsr (pymeshlab" in text
+
+
+def test_pictures_of_a_body_file_are_named_by_the_file_not_its_path(tmp_path):
+    """A posture given as a body file (``--bodies DIR/name.npz``) is pictured as ``img/METHOD_name.png``
+    in the report folder, not in folders named after its path."""
+    pytest.importorskip("pyrender")
+    from bodyscan.benchmarks.bench import _pictures
+
+    t = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
+    mesh = {"vertices": np.asarray(t.vertices), "faces": np.asarray(t.faces), "closeups": {},
+            "face_section": np.zeros(len(t.faces), int), "spurious": None, "bridging": None}
+    done = _pictures({"proposed": mesh}, (str(tmp_path / "bodies" / "walker.npz"), "paper", 1), tmp_path, None)
+    assert done == [("proposed", ["img/proposed_walker.png"])]
+    assert (tmp_path / "img" / "proposed_walker.png").is_file()
