@@ -737,10 +737,11 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         # whole body first (crown to sole: where the torso sits along its axis cancels out), then
         # the legs, then any limb (a hand resting on a thigh makes an arm look far too long)
         crown = ratios.get("body") or []
-        # adult proportions: crown to sole; a child's large head and short legs: the legs
+        # crown to sole when the legs disagree with it (at any size: a child's legs are short for
+        # its stature, and legs measured from the hips of a model matched at the wrong size are off)
         legs = [v for k, v in ratios.items() if k.startswith("lower_leg")]
         adult = bool(crown) and body.stature * np.median(crown) >= params.fit_anchor_min_stature
-        use = crown if adult and (params.match_size_from_crown or (
+        use = crown if crown and ((adult and params.match_size_from_crown) or (
             legs and abs(np.median(legs) - np.median(crown)) > params.match_size_disagree)) else []
         use = use or legs
         if not use and ratios.get("cut"):
