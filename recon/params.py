@@ -765,11 +765,11 @@ class FitParams:
     match_size_disagree: float = field(default=0.1,  # 2.1: the legs' length (from the matched hips) and crown to sole (which does
         metadata={"help": "legs and crown-to-sole differing by more than this ratio: size from crown to sole", "unit": "", "range": (0, 10)})
                                            # not depend on where the torso sits along its axis) differ by more than this
-                                           # ratio: the hips were misplaced or the legs are not the standard's share of
-                                           # the stature (a child's), size from crown to sole (at any size; a
+                                           # ratio: the hips were misplaced, size from crown to sole (adult sizes; a
                                            # walker 1.97 m tall, hips matched 11 cm high: legs 2.2 m, crown to sole
                                            # 2.0 m; on the library's other adult-size matches they agree within
-                                           # 0.09; chosen)
+                                           # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
+                                           # chosen)
     match_leg_trunk_min: float = field(default=0.8,  # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
         metadata={"help": "leg chains shorter than this times the trunk are legs cut from the scan (0 = off)", "unit": "", "range": (0, 10)})
                                            # less than this times the trunk (crown to the crotch seen in the points,
