@@ -91,7 +91,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    axis makes them too long or too short; crown to sole (through each leg) does not depend on
    where the torso sits. When the two disagree by more than `match_size_disagree` (adult sizes),
    the hips were misplaced and the size comes from crown to sole, and the next match hangs the
-   torso from the crown (`match_resized_anchor_shift`). Crown to sole is measured over
+   torso from the crown (`match_resized_anchor_shift`). A child stays sized by its legs (its
+   large head and short legs make the two disagree by nature), but its size from crown to sole is
+   matched too and is the first pose tried when the fit at the legs' size fails its checks: a
+   child matched at the first size of 1.5 m can measure its legs from hips placed too low, and at
+   the size they give its trunk and head no longer fit; the next pose tried was the first size's,
+   both lower legs listed, knees 18 cm off. Crown to sole is measured over
    the coarse model: where a joint bends (a knee, the head on the trunk) the model's segment before
    it, not the points, sets where the next one hangs, so that segment's unseen part (its length x
    (1 - cos bend)) is taken out of the measured and the model lengths (`recon.posture.match.size_ratios`).

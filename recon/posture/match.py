@@ -644,7 +644,8 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     Of the torso candidates, each placed with all its sections, the one whose model explains most
     points (`match_explain_distance`) wins; when the legs size the body but crown to sole says
     another size, it is matched at both and the same count decides (`match_size_both`). Returns the
-    best pose, then up to `match_alternatives`
+    best pose; for a child sized by its legs while crown to sole differs by more than
+    `match_size_disagree`, its match at the crown-to-sole size; then up to `match_alternatives`
     poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
     best first."""
     centroid = _thick_core(scorer.vol)
@@ -689,6 +690,8 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         return best, [p for p in (eligible or placed) if p is not best], placed
 
     extra = []   # (body, hang): further sizes to match in the next round
+    backup = None   # a size matched in the next round as the first alternative (a child's crown to sole)
+    second = None   # its match
     cut = set()  # lower legs whose chain measured far shorter than the trunk (`size_ratios`)
     last = max(1, params.match_rounds) - 1   # the last round
     for rnd in range(max(1, params.match_rounds) + 1):
@@ -717,6 +720,11 @@ def coarse_match(points, scorer, params: FitParams) -> list:
             if b2.explained > best.explained:
                 best, b2, others, o2, placed = b2, best, o2, others, p2
             alternatives += [b2] + o2
+        if backup is not None:
+            # from the same starts, hung from the crown as a body sized from it is
+            second = match_at(backup, _match_torso(scorer, centroid, backup, params, starts),
+                              params.match_resized_anchor_shift)[0]
+            backup = None
         alternatives += others
         if pose is not None and best.body.stature > pose.body.stature and best.explained < pose.explained:
             # matched again larger, the model explains fewer points (a larger model explains more
@@ -756,6 +764,14 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         if abs(s - 1.0) < params.match_resize_tolerance:
             break
         body = standard_body(float(np.clip(body.stature * s, *STATURE_RANGE)))
+        second = None
+        if not adult and use is legs and crown and \
+                abs(np.median(legs) - np.median(crown)) > params.match_size_disagree:
+            # a child's legs are short for its stature, and measured from the hips of a model matched
+            # at the wrong size (the first, 1.5 m) they can size it far too small: its trunk and head
+            # then do not fit. Crown to sole, which depends on neither, is matched too and is the
+            # next pose tried when the legs' size fails the checks (before the first size's)
+            backup = standard_body(float(np.clip(pose.body.stature * np.median(crown), *STATURE_RANGE)))
         starts = [(pose.centre, pose.R)]
         u = upright_restart(pose, placed, params.match_upright_start) if params.match_resize_upright else None
         if u is not None:
@@ -784,7 +800,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
                or np.linalg.norm(p.centre - q.centre) > 0.5 * params.match_min_anchor_shift for q in seen):
             seen.append(p)
             alts.append(p)
-    out = [pose] + alts[:max(0, params.match_alternatives)]
+    out = [pose] + ([second] if second is not None else []) + alts[:max(0, params.match_alternatives)]
     for p in out:
         # a leg chain far shorter than its trunk ends where the scan does: its lower leg is not in
         # it, and wherever the match put one (across to the other leg's stump) it lies on other
