@@ -128,23 +128,28 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         base = np.ones((m, k))
     else:
         base = ((distance <= radius) | (np.arange(k) < min_points)).astype(np.float64)
-    whole = beta0 = None
     step = max(1, CHUNK * 40 // k)  # queries per chunk: about as much memory whatever k
+
+    def first(a):  # a chunk's frames and unweighted fits
+        f = _Patch(points[neighbours[a:a + step]], query[a:a + step], base[a:a + step])
+        return f, f.fit(f.w0)
+
+    starts = range(0, m, step)
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
         sample = _sample(m)
-        if m <= step:  # one chunk: its frames and first fits serve the scale and the fits
-            whole = _Patch(points[neighbours], query, base)
-            beta0 = whole.fit(whole.w0)
-            res = (whole.z - whole.predict(beta0))[sample]
-        else:
-            sub = _Patch(points[neighbours[sample]], query[sample], base[sample])
-            res = sub.z - sub.predict(sub.fit(sub.w0))
-        scale = robust_scale(res[base[sample] > 0])
+        made = _map(first, starts, workers)  # kept: the fits go on from them
+        res = []
+        for a, (f, beta) in zip(starts, made):
+            rows = sample[(sample >= a) & (sample < a + step)] - a
+            res.append((f.z[rows] - (beta[rows, None, :] @ f.mono[rows, :6])[:, 0])[base[a + rows] > 0])
+        scale = robust_scale(np.concatenate(res))
+    else:
+        made = [None] * len(starts)
 
-    def chunk(a):
-        f = whole if whole is not None else _Patch(points[neighbours[a:a + step]], query[a:a + step],
-                                                   base[a:a + step])
-        beta = beta0 if whole is not None else f.fit(f.w0)
+    def chunk(i):
+        a = starts[i]
+        f, beta = made[i] if made[i] is not None else first(a)
+        made[i] = None  # the chunk's memory goes once fitted
         for _ in range(iterations):
             beta = f.fit(tukey_weights(f.z - f.predict(beta), scale) * f.w0)
         normal[a:a + step] = f.normal
@@ -152,7 +157,7 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         center[a:a + step], frame[a:a + step], size[a:a + step] = f.center, f.frame, f.size
         coef[a:a + step] = beta
 
-    _map(chunk, range(0, m, step), workers)
+    _map(chunk, range(len(starts)), workers)
     return LocalFit(normal, resid, center, frame, size, coef)
 
 
