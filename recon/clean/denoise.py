@@ -87,7 +87,12 @@ def tukey_weights(residual: np.ndarray, scale: float) -> np.ndarray:
     """Tukey's biweight of each residual at ``scale``: ``(1 - u^2)^2`` with ``u`` the residual in
     `TUKEY` scales, 0 beyond (an outlier has no say)."""
     u = residual / (TUKEY * scale)
-    return np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    inside = np.abs(u) < 1
+    u *= u
+    np.subtract(1.0, u, out=u)
+    u *= u
+    u[~inside] = 0.0
+    return u
 
 
 def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, scale: float | None = None,
@@ -203,9 +208,10 @@ class _Patch:
         loc = d @ vec
         ql = np.einsum("mdj,md->mj", vec, q - c)
         # x, y in units of the neighbourhood's size, so that the damping of `fit` is scale-free
-        s = np.sqrt(np.einsum("mk,mk->m", (loc[..., :2] ** 2).sum(axis=2), w0) / sw[:, 0])
+        x, y = loc[..., 0], loc[..., 1]
+        s = np.sqrt(np.einsum("mk,mk->m", x * x + y * y, w0) / sw[:, 0])
         s = np.where(s > 0, s, 1.0)
-        self.mono = _monomials(loc[..., 0] / s[:, None], loc[..., 1] / s[:, None])  # (m, 15, k)
+        self.mono = _monomials(x / s[:, None], y / s[:, None])  # (m, 15, k)
         self.z = np.ascontiguousarray(loc[..., 2])
         self.w0 = w0
         self.aq = _monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0]
@@ -220,8 +226,9 @@ class _Patch:
         moments = (self.mono @ w[..., None])[..., 0]
         ata = moments[:, _PRODUCT]
         atz = (self.mono[:, :6] @ (w * self.z)[..., None])[..., 0]
-        tr = np.trace(ata, axis1=1, axis2=2)[:, None, None]
-        ata = ata + 1e-9 * tr * np.eye(6) + 1e-30 * np.eye(6)
+        diagonal = np.einsum("mii->mi", ata)  # a view: damped in place
+        diagonal += 1e-9 * diagonal.sum(axis=1)[:, None]
+        diagonal += 1e-30
         return np.linalg.solve(ata, atz[..., None])[..., 0]
 
     def predict(self, beta: np.ndarray) -> np.ndarray:
