@@ -214,7 +214,7 @@ class _Patch:
         self.mono = _monomials(x / s[:, None], y / s[:, None])  # (m, 15, k)
         self.z = np.ascontiguousarray(loc[..., 2])
         self.w0 = w0
-        self.aq = _monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0]
+        self.aq = np.ascontiguousarray(_monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0])
         self.zq = ql[:, 2]
         self.normal = np.ascontiguousarray(vec[:, :, 2])
         self.center, self.frame, self.size = c, vec, s
@@ -237,15 +237,16 @@ class _Patch:
 
 
 def _monomials(x, y):
-    """(m, 15, k): x^a y^b of ``x``, ``y`` (m, k) for the exponents of `_EXPONENTS`."""
-    out = np.empty((x.shape[0], len(_EXPONENTS), x.shape[1]))
-    out[:, 0] = 1.0
-    out[:, 1] = x
-    out[:, 2] = y
+    """(m, 15, k): x^a y^b of ``x``, ``y`` (m, k) for the exponents of `_EXPONENTS` (a view of a
+    (15, m, k) array: each monomial one contiguous product)."""
+    out = np.empty((len(_EXPONENTS),) + np.shape(x))
+    out[0] = 1.0
+    out[1] = x
+    out[2] = y
     for i, (a, b) in enumerate(_EXPONENTS[3:], start=3):   # each one more factor x or y than an earlier one
         j, f = (_EXPONENTS.index((a - 1, b)), x) if a else (_EXPONENTS.index((a, b - 1)), y)
-        np.multiply(out[:, j], f, out=out[:, i])
-    return out
+        np.multiply(out[j], f, out=out[i])
+    return out.transpose(1, 0, 2)
 
 
 def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z: float = 5.0,
