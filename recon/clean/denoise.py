@@ -290,7 +290,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
         return np.zeros(n, dtype=bool), 0.0
     tree = cKDTree(points) if tree is None else tree
     # only isolated points can be outliers: fit those, and a sample of all for the scale
-    alone = tree.query(points, k=2, workers=workers)[0][:, 1] > isolation * spacing
+    alone = _isolated(tree, points, isolation * spacing, workers)
     sample = np.zeros(n, dtype=bool)
     sample[_sample(n, 2 * SAMPLE)] = True
     rows = np.flatnonzero(alone | sample)
@@ -300,6 +300,13 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     outlier = np.zeros(n, dtype=bool)
     outlier[rows] = (np.abs(fit.residual) > max(z * scale, floor * spacing)) & alone[rows]
     return outlier, scale
+
+
+def _isolated(tree, points: np.ndarray, gap: float, workers: int = 1) -> np.ndarray:
+    """(n,) bool: whether each of ``points`` (n, 3), all of them in the cKDTree ``tree``, has no
+    other point of the tree within ``gap`` (the search bounded just beyond it: speed only)."""
+    bound = gap * (1 + 1e-6) if gap > 0 else np.inf
+    return tree.query(points, k=2, distance_upper_bound=bound, workers=workers)[0][:, 1] > gap
 
 
 def _thin(points: np.ndarray, cube: float) -> np.ndarray:
@@ -420,7 +427,7 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
             d, nb = tree.query(sub, k=k)
             fit = local_fits(sub, sub, nb, distance=d, radius=rad)
             return idx, d[:, 1] > isolation * spacing, fit, k > neighbours
-        far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
+        far = _isolated(tree, sub, isolation * spacing)
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
         # widened fits are shared over wider cubes: as many fits overlap each point whatever k
         thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
