@@ -34,6 +34,10 @@ MIN_FIT = 10
 CHUNK = 2500
 #: Queries whose unweighted fits give the residual scale, at most (a seeded sample).
 SAMPLE = 5000
+#: Neighbours (queries times k) at most whose first fits are all kept while the scale is taken
+#: from them, six chunks (speed only: about 140 bytes each, 85 MB; more, and the sample is fitted
+#: on its own, as well).
+KEEP = 6 * CHUNK * 40
 #: Shared fits (`denoise` with ``share``) averaged per point.
 BLEND = 3
 
@@ -140,16 +144,20 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         return f, f.fit(f.w0)
 
     starts = range(0, m, step)
+    made = [None] * len(starts)
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
         sample = _sample(m)
-        made = _map(first, starts, workers)  # kept: the fits go on from them
-        res = []
-        for a, (f, beta) in zip(starts, made):
-            rows = sample[(sample >= a) & (sample < a + step)] - a
-            res.append((f.z[rows] - (beta[rows, None, :] @ f.mono[rows, :6])[:, 0])[base[a + rows] > 0])
-        scale = robust_scale(np.concatenate(res))
-    else:
-        made = [None] * len(starts)
+        if m * k <= KEEP:  # every chunk's first fits, kept: the fits go on from them
+            made = _map(first, starts, workers)
+            res = []
+            for a, (f, beta) in zip(starts, made):
+                rows = sample[(sample >= a) & (sample < a + step)] - a
+                res.append((f.z[rows] - (beta[rows, None, :] @ f.mono[rows, :6])[:, 0])[base[a + rows] > 0])
+            res = np.concatenate(res)
+        else:  # the sample's own
+            sub = _Patch(points[neighbours[sample]], query[sample], base[sample])
+            res = (sub.z - sub.predict(sub.fit(sub.w0)))[base[sample] > 0]
+        scale = robust_scale(res)
 
     def chunk(i):
         a = starts[i]
