@@ -235,3 +235,21 @@ def test_widened_fits_stay_within_their_reach():
            for r in (0.02, 0.012)]
     assert rms[1] < 0.9 * rms[0]
     assert rms[1] < 0.3 * sigma
+
+
+def test_isolated_points_are_those_with_no_other_point_within_the_gap():
+    # a 1 mm grid line with one point 2.5 mm past its end and a duplicated point: the bounded
+    # search finds what the unbounded one does, at the gap itself and at gap 0
+    from scipy.spatial import cKDTree
+
+    from bodyscan.recon.clean.denoise import _isolated
+
+    x = np.concatenate([np.arange(5) * 0.001, [0.0065, 0.002]])
+    pts = np.column_stack([x, np.zeros_like(x), np.zeros_like(x)])
+    tree = cKDTree(pts)
+    assert _isolated(tree, pts, 0.0015).tolist() == [False] * 5 + [True, False]
+    assert _isolated(tree, pts, 0.003).tolist() == [False] * 7
+    assert _isolated(tree, pts, 0.0).tolist() == [True, True, False, True, True, True, False]
+    nearest = tree.query(pts, k=2)[0][:, 1]
+    for gap in np.unique(nearest):  # a gap equal to a nearest distance: that point is not isolated
+        assert (_isolated(tree, pts, gap) == (nearest > gap)).all()

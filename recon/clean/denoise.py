@@ -34,6 +34,10 @@ MIN_FIT = 10
 CHUNK = 2500
 #: Queries whose unweighted fits give the residual scale, at most (a seeded sample).
 SAMPLE = 5000
+#: Neighbours (queries times k) at most whose first fits are all kept while the scale is taken
+#: from them, six chunks (speed only: about 140 bytes each, 85 MB; more, and the sample is fitted
+#: on its own, as well).
+KEEP = 6 * CHUNK * 40
 #: Shared fits (`denoise` with ``share``) averaged per point.
 BLEND = 3
 
@@ -87,7 +91,12 @@ def tukey_weights(residual: np.ndarray, scale: float) -> np.ndarray:
     """Tukey's biweight of each residual at ``scale``: ``(1 - u^2)^2`` with ``u`` the residual in
     `TUKEY` scales, 0 beyond (an outlier has no say)."""
     u = residual / (TUKEY * scale)
-    return np.where(np.abs(u) < 1, (1 - u * u) ** 2, 0.0)
+    inside = np.abs(u) < 1
+    u *= u
+    np.subtract(1.0, u, out=u)
+    u *= u
+    u[~inside] = 0.0
+    return u
 
 
 def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, scale: float | None = None,
@@ -128,23 +137,32 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         base = np.ones((m, k))
     else:
         base = ((distance <= radius) | (np.arange(k) < min_points)).astype(np.float64)
-    whole = beta0 = None
     step = max(1, CHUNK * 40 // k)  # queries per chunk: about as much memory whatever k
+
+    def first(a):  # a chunk's frames and unweighted fits
+        f = _Patch(points[neighbours[a:a + step]], query[a:a + step], base[a:a + step])
+        return f, f.fit(f.w0)
+
+    starts = range(0, m, step)
+    made = [None] * len(starts)
     if scale is None:  # from the unweighted fits' residuals at the neighbours, over a sample
         sample = _sample(m)
-        if m <= step:  # one chunk: its frames and first fits serve the scale and the fits
-            whole = _Patch(points[neighbours], query, base)
-            beta0 = whole.fit(whole.w0)
-            res = (whole.z - whole.predict(beta0))[sample]
-        else:
+        if m * k <= KEEP:  # every chunk's first fits, kept: the fits go on from them
+            made = _map(first, starts, workers)
+            res = []
+            for a, (f, beta) in zip(starts, made):
+                rows = sample[(sample >= a) & (sample < a + step)] - a
+                res.append((f.z[rows] - (beta[rows, None, :] @ f.mono[rows, :6])[:, 0])[base[a + rows] > 0])
+            res = np.concatenate(res)
+        else:  # the sample's own
             sub = _Patch(points[neighbours[sample]], query[sample], base[sample])
-            res = sub.z - sub.predict(sub.fit(sub.w0))
-        scale = robust_scale(res[base[sample] > 0])
+            res = (sub.z - sub.predict(sub.fit(sub.w0)))[base[sample] > 0]
+        scale = robust_scale(res)
 
-    def chunk(a):
-        f = whole if whole is not None else _Patch(points[neighbours[a:a + step]], query[a:a + step],
-                                                   base[a:a + step])
-        beta = beta0 if whole is not None else f.fit(f.w0)
+    def chunk(i):
+        a = starts[i]
+        f, beta = made[i] if made[i] is not None else first(a)
+        made[i] = None  # the chunk's memory goes once fitted
         for _ in range(iterations):
             beta = f.fit(tukey_weights(f.z - f.predict(beta), scale) * f.w0)
         normal[a:a + step] = f.normal
@@ -152,7 +170,7 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
         center[a:a + step], frame[a:a + step], size[a:a + step] = f.center, f.frame, f.size
         coef[a:a + step] = beta
 
-    _map(chunk, range(0, m, step), workers)
+    _map(chunk, range(len(starts)), workers)
     return LocalFit(normal, resid, center, frame, size, coef)
 
 
@@ -198,12 +216,13 @@ class _Patch:
         loc = d @ vec
         ql = np.einsum("mdj,md->mj", vec, q - c)
         # x, y in units of the neighbourhood's size, so that the damping of `fit` is scale-free
-        s = np.sqrt(np.einsum("mk,mk->m", (loc[..., :2] ** 2).sum(axis=2), w0) / sw[:, 0])
+        x, y = loc[..., 0], loc[..., 1]
+        s = np.sqrt(np.einsum("mk,mk->m", x * x + y * y, w0) / sw[:, 0])
         s = np.where(s > 0, s, 1.0)
-        self.mono = _monomials(loc[..., 0] / s[:, None], loc[..., 1] / s[:, None])  # (m, 15, k)
+        self.mono = _monomials(x / s[:, None], y / s[:, None])  # (m, 15, k)
         self.z = np.ascontiguousarray(loc[..., 2])
         self.w0 = w0
-        self.aq = _monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0]
+        self.aq = np.ascontiguousarray(_monomials(ql[:, 0, None] / s[:, None], ql[:, 1, None] / s[:, None])[:, :6, 0])
         self.zq = ql[:, 2]
         self.normal = np.ascontiguousarray(vec[:, :, 2])
         self.center, self.frame, self.size = c, vec, s
@@ -215,8 +234,9 @@ class _Patch:
         moments = (self.mono @ w[..., None])[..., 0]
         ata = moments[:, _PRODUCT]
         atz = (self.mono[:, :6] @ (w * self.z)[..., None])[..., 0]
-        tr = np.trace(ata, axis1=1, axis2=2)[:, None, None]
-        ata = ata + 1e-9 * tr * np.eye(6) + 1e-30 * np.eye(6)
+        diagonal = np.einsum("mii->mi", ata)  # a view: damped in place
+        diagonal += 1e-9 * diagonal.sum(axis=1)[:, None]
+        diagonal += 1e-30
         return np.linalg.solve(ata, atz[..., None])[..., 0]
 
     def predict(self, beta: np.ndarray) -> np.ndarray:
@@ -225,15 +245,16 @@ class _Patch:
 
 
 def _monomials(x, y):
-    """(m, 15, k): x^a y^b of ``x``, ``y`` (m, k) for the exponents of `_EXPONENTS`."""
-    out = np.empty((x.shape[0], len(_EXPONENTS), x.shape[1]))
-    out[:, 0] = 1.0
-    out[:, 1] = x
-    out[:, 2] = y
+    """(m, 15, k): x^a y^b of ``x``, ``y`` (m, k) for the exponents of `_EXPONENTS` (a view of a
+    (15, m, k) array: each monomial one contiguous product)."""
+    out = np.empty((len(_EXPONENTS),) + np.shape(x))
+    out[0] = 1.0
+    out[1] = x
+    out[2] = y
     for i, (a, b) in enumerate(_EXPONENTS[3:], start=3):   # each one more factor x or y than an earlier one
         j, f = (_EXPONENTS.index((a - 1, b)), x) if a else (_EXPONENTS.index((a, b - 1)), y)
-        np.multiply(out[:, j], f, out=out[:, i])
-    return out
+        np.multiply(out[j], f, out=out[i])
+    return out.transpose(1, 0, 2)
 
 
 def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z: float = 5.0,
@@ -277,7 +298,7 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
         return np.zeros(n, dtype=bool), 0.0
     tree = cKDTree(points) if tree is None else tree
     # only isolated points can be outliers: fit those, and a sample of all for the scale
-    alone = tree.query(points, k=2, workers=workers)[0][:, 1] > isolation * spacing
+    alone = _isolated(tree, points, isolation * spacing, workers)
     sample = np.zeros(n, dtype=bool)
     sample[_sample(n, 2 * SAMPLE)] = True
     rows = np.flatnonzero(alone | sample)
@@ -287,6 +308,13 @@ def reject_outliers(points: np.ndarray, spacing: float, neighbours: int = 16, z:
     outlier = np.zeros(n, dtype=bool)
     outlier[rows] = (np.abs(fit.residual) > max(z * scale, floor * spacing)) & alone[rows]
     return outlier, scale
+
+
+def _isolated(tree, points: np.ndarray, gap: float, workers: int = 1) -> np.ndarray:
+    """(n,) bool: whether each of ``points`` (n, 3), all of them in the cKDTree ``tree``, has no
+    other point of the tree within ``gap`` (the search bounded just beyond it: speed only)."""
+    bound = gap * (1 + 1e-6) if gap > 0 else np.inf
+    return tree.query(points, k=2, distance_upper_bound=bound, workers=workers)[0][:, 1] > gap
 
 
 def _thin(points: np.ndarray, cube: float) -> np.ndarray:
@@ -407,7 +435,7 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
             d, nb = tree.query(sub, k=k)
             fit = local_fits(sub, sub, nb, distance=d, radius=rad)
             return idx, d[:, 1] > isolation * spacing, fit, k > neighbours
-        far = tree.query(sub, k=2)[0][:, 1] > isolation * spacing
+        far = _isolated(tree, sub, isolation * spacing)
         # a fit centred on each isolated point (it is tested as an outlier on its own fit)
         # widened fits are shared over wider cubes: as many fits overlap each point whatever k
         thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
