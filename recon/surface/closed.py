@@ -221,8 +221,41 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     return out
 
 
+def seen_index(vertices: np.ndarray, faces: np.ndarray):
+    """The open mesh's vertices in faces, their unit normals and a KD-tree of them, for
+    `seen_distance` (built once for several queries of the same mesh).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (f, 3) int
+        The open mesh, wound outward.
+
+    Returns
+    -------
+    used : (u,) int
+        The vertices in a face (indices into ``vertices``).
+    vpn : (u, 6) float
+        Their positions and unit normals (area-weighted mean of their faces' normals).
+    tree : scipy.spatial.cKDTree
+        Of their positions.
+    """
+    from scipy.spatial import cKDTree
+
+    faces = np.asarray(faces, dtype=np.int64)
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
+    vn = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    used = np.unique(faces)
+    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
+    vp = vertices[used]
+    return used, np.column_stack([vp, vn]), cKDTree(vp)
+
+
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
-                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf):
+                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf, index=None):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -256,20 +289,12 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         surface, growing past the rim of a hole.
     vertex : (m,) int
         The nearest vertex (index into ``vertices``).
+    index : tuple, optional
+        `seen_index` of the mesh (built here without it).
     """
-    from scipy.spatial import cKDTree
-
-    faces = np.asarray(faces, dtype=np.int64)
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
-    vn = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    used = np.unique(faces)
-    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
-    vp = vertices[used]
+    used, vpn, tree = seen_index(vertices, faces) if index is None else index
+    vp, vn = vpn[:, :3], vpn[:, 3:]
     k = min(k, len(used))
-    tree = cKDTree(vp)
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
     d0, i0 = tree.query(at, 1, distance_upper_bound=reach)
     near = np.flatnonzero(np.isfinite(d0))
@@ -281,7 +306,8 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
     if len(fine) and k > 1:
         d, i = tree.query(at[fine], k)
-        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - vp[i], vn[i])
+        pn = vpn[i]     # (m, k, 6): one gather of the positions and normals
+        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
         dist[fine] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
@@ -433,7 +459,8 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return
-    used = np.unique(faces)
+    index = seen_index(vertices, faces)
+    used = index[0]
     shape = np.array(F.shape)
     reach = int(np.ceil(max(band, BAND_BLEND) * spacing / voxel)) + 1
     # grid points within ``reach`` steps (a box) of a vertex's grid point, on the coarse lattice
@@ -449,7 +476,8 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     reach_m = np.hypot(band, BAND_BLEND) * spacing
     margin = np.sqrt(3) * voxel
     # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
-    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin)
+    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin,
+                                     index=index)
     slack = SLACK * margin
     keep = ((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
             & (beside < BAND_BLEND * spacing + slack))
@@ -457,7 +485,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
     g = g[((g >= 1) & (g < shape - 1)).all(axis=1)]
     dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
-                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing)
+                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index)
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
