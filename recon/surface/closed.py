@@ -49,7 +49,7 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
 
     # no grid value exactly at the level: every vertex then lies inside one grid edge, so the
     # cubes sharing that edge share the vertex (a level value would put several on one corner)
-    v = np.where(values == 0, 1e-12, values).astype(np.float64)
+    v = np.where(values == 0, 1e-12, values).astype(np.float64, copy=False)
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
@@ -167,11 +167,10 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
     return R, h0
 
 
-def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None) -> np.ndarray:
-    """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
-    ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
-    (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
-    past its last cells (and not past ``h1``, the last point's h, when given)."""
+def field_tables(R: np.ndarray, cell: float):
+    """Two (n_t, n_h) float tables: per cell of the radial field ``R`` (n_t, n_h), the signed distance
+    (metres along the grid, positive within) to the edge of its valid cells and the nearest valid
+    radius (`field_value`'s tables, computed once per field)."""
     from scipy.ndimage import distance_transform_edt
 
     n_t, n_h = R.shape
@@ -183,6 +182,17 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     S = np.where(pad, inner - 0.5, 0.5 - outer)[n_t:2 * n_t, 1:-1] * cell
     Rn = np.tile(np.where(valid, R, 0.0), (3, 1))
     Rn = np.pad(Rn, ((0, 0), (1, 1)))[it, ih][n_t:2 * n_t, 1:-1]   # nearest valid radius outside
+    return S, Rn
+
+
+def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None, tables=None) -> np.ndarray:
+    """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
+    ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
+    (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
+    past its last cells (and not past ``h1``, the last point's h, when given). ``tables``:
+    `field_tables` of ``R`` (computed here without it)."""
+    n_t, n_h = R.shape
+    S, Rn = field_tables(R, cell) if tables is None else tables
     rho = np.hypot(local[:, 0], local[:, 1])
     tf = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi) / (2 * np.pi) * n_t - 0.5
     hf = np.clip((local[:, 2] - h0) / cell - 0.5, -1.0, n_h)
@@ -210,14 +220,15 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     from scipy.ndimage import binary_dilation
 
     D = tuple(int(d) for d in i1 - i0)
+    tables = field_tables(R, cell)
     gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
-    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1).reshape(tuple((d + 1) // 2 for d in D))
+    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1, tables).reshape(tuple((d + 1) // 2 for d in D))
     near = binary_dilation(np.abs(vc) < 4 * voxel)
     up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
     out = np.ascontiguousarray(up(vc))
     fine = np.flatnonzero(up(near))
     g = np.column_stack(np.unravel_index(fine, D)) + i0
-    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1)
+    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1, tables)
     return out
 
 
