@@ -49,7 +49,16 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
 
     # no grid value exactly at the level: every vertex then lies inside one grid edge, so the
     # cubes sharing that edge share the vertex (a level value would put several on one corner)
-    v = np.where(values == 0, 1e-12, values).astype(np.float64, copy=False)
+    # only the box of the inside grid points and one more layer holds cubes that cross the level
+    inside = values >= 0
+    box = []
+    for ax in range(3):
+        hit = np.flatnonzero(inside.any(axis=tuple(a for a in range(3) if a != ax)))
+        box.append(slice(max(int(hit[0]) - 1, 0), min(int(hit[-1]) + 2, values.shape[ax])) if len(hit)
+                   else slice(0, values.shape[ax]))
+    box = tuple(box)
+    start = np.array([b.start for b in box])
+    v = np.where(values[box] == 0, 1e-12, values[box]).astype(np.float64, copy=False)
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
@@ -59,8 +68,8 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
         corners = cube[:, None, :] + np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])[None]
         flat = np.ravel_multi_index(tuple(corners.reshape(-1, 3).T), v.shape).reshape(-1, 8)
         inner = np.take_along_axis(flat, np.argmax(v.ravel()[flat], axis=1)[:, None], axis=1)[:, 0]
-        face_label = labels.ravel()[inner]
-    return origin + step * vertices, faces, face_label
+        face_label = labels[box].ravel()[inner]
+    return origin + step * (vertices + start), faces, face_label
 
 
 #: A row's gap in the seen surface is a hole to fill when it spans at most this fraction of the turn.
