@@ -235,7 +235,9 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     near = binary_dilation(np.abs(vc) < 4 * voxel)
     up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
     out = np.ascontiguousarray(up(vc))
-    fine = np.flatnonzero(up(near))
+    todo = up(near)
+    todo[::2, ::2, ::2] = False      # the coarse points themselves have their value
+    fine = np.flatnonzero(todo)
     g = np.column_stack(np.unravel_index(fine, D)) + i0
     out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1, tables)
     return out
