@@ -277,7 +277,8 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
 
 
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
-                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf, index=None):
+                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf, index=None,
+                  nearest=None):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -313,12 +314,15 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         The nearest vertex (index into ``vertices``).
     index : tuple, optional
         `seen_index` of the mesh (built here without it).
+    nearest : ((m,) float, (m,) int), optional
+        The nearest vertex's distance (inf beyond ``reach``) and index into ``index``'s vertices,
+        as ``index``'s tree answers a query bounded by ``reach`` (queried here without it).
     """
     used, vpn, tree = seen_index(vertices, faces) if index is None else index
     vp, vn = vpn[:, :3], vpn[:, 3:]
     k = min(k, len(used))
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
-    d0, i0 = tree.query(at, 1, distance_upper_bound=reach)
+    d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
     along0 = np.einsum("mj,mj->m", at[near] - vp[i0], vn[i0])
@@ -498,16 +502,28 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     reach_m = np.hypot(band, BAND_BLEND) * spacing
     margin = np.sqrt(3) * voxel
     # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
+    tree = index[2]
+    dc, ic = tree.query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
     along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin,
-                                     index=index)
+                                     index=index, nearest=(dc, ic))
     slack = SLACK * margin
-    keep = ((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
-            & (beside < BAND_BLEND * spacing + slack))
-    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
+                          & (beside < BAND_BLEND * spacing + slack))
+    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])     # (0, 0, 0) first
     g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
-    g = g[((g >= 1) & (g < shape - 1)).all(axis=1)]
+    inside = ((g >= 1) & (g < shape - 1)).all(axis=1)
+    g = g[inside]
+    # the nearest vertex: a coarse point's is the coarse pass's (its query reached farther)
+    parent = np.repeat(keep, 8)[inside]
+    own = (np.arange(len(inside)) % 8 == 0)[inside]
+    d0, i0 = np.full(len(g), np.inf), np.full(len(g), len(index[0]), dtype=np.int64)
+    within = own & (dc[parent] < reach_m)
+    d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
+    ask = ~own
+    d0[ask], i0[ask] = tree.query(lo + voxel * g[ask], 1, distance_upper_bound=reach_m)
     dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
-                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index)
+                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
+                                    nearest=(d0, i0))
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
