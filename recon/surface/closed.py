@@ -49,7 +49,16 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
 
     # no grid value exactly at the level: every vertex then lies inside one grid edge, so the
     # cubes sharing that edge share the vertex (a level value would put several on one corner)
-    v = np.where(values == 0, 1e-12, values).astype(np.float64)
+    # only the box of the inside grid points and one more layer holds cubes that cross the level
+    inside = values >= 0
+    box = []
+    for ax in range(3):
+        hit = np.flatnonzero(inside.any(axis=tuple(a for a in range(3) if a != ax)))
+        box.append(slice(max(int(hit[0]) - 1, 0), min(int(hit[-1]) + 2, values.shape[ax])) if len(hit)
+                   else slice(0, values.shape[ax]))
+    box = tuple(box)
+    start = np.array([b.start for b in box])
+    v = np.where(values[box] == 0, 1e-12, values[box]).astype(np.float64, copy=False)
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
@@ -59,8 +68,8 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
         corners = cube[:, None, :] + np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])[None]
         flat = np.ravel_multi_index(tuple(corners.reshape(-1, 3).T), v.shape).reshape(-1, 8)
         inner = np.take_along_axis(flat, np.argmax(v.ravel()[flat], axis=1)[:, None], axis=1)[:, 0]
-        face_label = labels.ravel()[inner]
-    return origin + step * vertices, faces, face_label
+        face_label = labels[box].ravel()[inner]
+    return origin + step * (vertices + start), faces, face_label
 
 
 #: A row's gap in the seen surface is a hole to fill when it spans at most this fraction of the turn.
@@ -167,11 +176,10 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
     return R, h0
 
 
-def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None) -> np.ndarray:
-    """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
-    ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
-    (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
-    past its last cells (and not past ``h1``, the last point's h, when given)."""
+def field_tables(R: np.ndarray, cell: float):
+    """Two (n_t, n_h) float tables: per cell of the radial field ``R`` (n_t, n_h), the signed distance
+    (metres along the grid, positive within) to the edge of its valid cells and the nearest valid
+    radius (`field_value`'s tables, computed once per field)."""
     from scipy.ndimage import distance_transform_edt
 
     n_t, n_h = R.shape
@@ -183,6 +191,17 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     S = np.where(pad, inner - 0.5, 0.5 - outer)[n_t:2 * n_t, 1:-1] * cell
     Rn = np.tile(np.where(valid, R, 0.0), (3, 1))
     Rn = np.pad(Rn, ((0, 0), (1, 1)))[it, ih][n_t:2 * n_t, 1:-1]   # nearest valid radius outside
+    return S, Rn
+
+
+def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=None, tables=None) -> np.ndarray:
+    """(k,) signed value, positive inside, of the solid ``rho <= R(theta, h)`` at the points
+    ``local`` (k, 3) of its frame: ``R - rho`` bilinear in the grid, bounded by the signed distance
+    (metres along the grid) to the edge of the surface's cells, so that the solid ends half a cell
+    past its last cells (and not past ``h1``, the last point's h, when given). ``tables``:
+    `field_tables` of ``R`` (computed here without it)."""
+    n_t, n_h = R.shape
+    S, Rn = field_tables(R, cell) if tables is None else tables
     rho = np.hypot(local[:, 0], local[:, 1])
     tf = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi) / (2 * np.pi) * n_t - 0.5
     hf = np.clip((local[:, 2] - h0) / cell - 0.5, -1.0, n_h)
@@ -210,19 +229,56 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     from scipy.ndimage import binary_dilation
 
     D = tuple(int(d) for d in i1 - i0)
+    tables = field_tables(R, cell)
     gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
-    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1).reshape(tuple((d + 1) // 2 for d in D))
+    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1, tables).reshape(tuple((d + 1) // 2 for d in D))
     near = binary_dilation(np.abs(vc) < 4 * voxel)
     up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
     out = np.ascontiguousarray(up(vc))
-    fine = np.flatnonzero(up(near))
+    todo = up(near)
+    todo[::2, ::2, ::2] = False      # the coarse points themselves have their value
+    fine = np.flatnonzero(todo)
     g = np.column_stack(np.unravel_index(fine, D)) + i0
-    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1)
+    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1, tables)
     return out
 
 
+def seen_index(vertices: np.ndarray, faces: np.ndarray):
+    """The open mesh's vertices in faces, their unit normals and a KD-tree of them, for
+    `seen_distance` (built once for several queries of the same mesh).
+
+    Parameters
+    ----------
+    vertices : (n, 3) float
+    faces : (f, 3) int
+        The open mesh, wound outward.
+
+    Returns
+    -------
+    used : (u,) int
+        The vertices in a face (indices into ``vertices``).
+    vpn : (u, 6) float
+        Their positions and unit normals (area-weighted mean of their faces' normals).
+    tree : scipy.spatial.cKDTree
+        Of their positions.
+    """
+    from scipy.spatial import cKDTree
+
+    faces = np.asarray(faces, dtype=np.int64)
+    tri = vertices[faces]
+    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
+    vn = np.zeros_like(vertices)
+    for c in range(3):
+        np.add.at(vn, faces[:, c], fn)
+    used = np.unique(faces)
+    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
+    vp = vertices[used]
+    return used, np.column_stack([vp, vn]), cKDTree(vp)
+
+
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
-                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf):
+                  reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf, index=None,
+                  nearest=None):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -256,22 +312,17 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         surface, growing past the rim of a hole.
     vertex : (m,) int
         The nearest vertex (index into ``vertices``).
+    index : tuple, optional
+        `seen_index` of the mesh (built here without it).
+    nearest : ((m,) float, (m,) int), optional
+        The nearest vertex's distance (inf beyond ``reach``) and index into ``index``'s vertices,
+        as ``index``'s tree answers a query bounded by ``reach`` (queried here without it).
     """
-    from scipy.spatial import cKDTree
-
-    faces = np.asarray(faces, dtype=np.int64)
-    tri = vertices[faces]
-    fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
-    vn = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    used = np.unique(faces)
-    vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
-    vp = vertices[used]
+    used, vpn, tree = seen_index(vertices, faces) if index is None else index
+    vp, vn = vpn[:, :3], vpn[:, 3:]
     k = min(k, len(used))
-    tree = cKDTree(vp)
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
-    d0, i0 = tree.query(at, 1, distance_upper_bound=reach)
+    d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
     along0 = np.einsum("mj,mj->m", at[near] - vp[i0], vn[i0])
@@ -281,7 +332,8 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
     if len(fine) and k > 1:
         d, i = tree.query(at[fine], k)
-        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - vp[i], vn[i])
+        pn = vpn[i]     # (m, k, 6): one gather of the positions and normals
+        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
         dist[fine] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
@@ -433,7 +485,8 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return
-    used = np.unique(faces)
+    index = seen_index(vertices, faces)
+    used = index[0]
     shape = np.array(F.shape)
     reach = int(np.ceil(max(band, BAND_BLEND) * spacing / voxel)) + 1
     # grid points within ``reach`` steps (a box) of a vertex's grid point, on the coarse lattice
@@ -449,15 +502,28 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     reach_m = np.hypot(band, BAND_BLEND) * spacing
     margin = np.sqrt(3) * voxel
     # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
-    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin)
+    tree = index[2]
+    dc, ic = tree.query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
+    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin,
+                                     index=index, nearest=(dc, ic))
     slack = SLACK * margin
-    keep = ((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
-            & (beside < BAND_BLEND * spacing + slack))
-    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
+                          & (beside < BAND_BLEND * spacing + slack))
+    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])     # (0, 0, 0) first
     g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
-    g = g[((g >= 1) & (g < shape - 1)).all(axis=1)]
+    inside = ((g >= 1) & (g < shape - 1)).all(axis=1)
+    g = g[inside]
+    # the nearest vertex: a coarse point's is the coarse pass's (its query reached farther)
+    parent = np.repeat(keep, 8)[inside]
+    own = (np.arange(len(inside)) % 8 == 0)[inside]
+    d0, i0 = np.full(len(g), np.inf), np.full(len(g), len(index[0]), dtype=np.int64)
+    within = own & (dc[parent] < reach_m)
+    d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
+    ask = ~own
+    d0[ask], i0[ask] = tree.query(lo + voxel * g[ask], 1, distance_upper_bound=reach_m)
     dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
-                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing)
+                                    exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
+                                    nearest=(d0, i0))
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     g, w = g[over], w[over]
