@@ -233,7 +233,6 @@ def test_skipped_peers_are_named_with_their_reason(monkeypatch):
 def test_pictures_of_a_body_file_are_named_by_the_file_not_its_path(tmp_path):
     """A posture given as a body file (``--bodies DIR/name.npz``) is pictured as ``img/METHOD_name.png``
     in the report folder, not in folders named after its path."""
-    pytest.importorskip("pyrender")
     from bodyscan.benchmarks.bench import _pictures
 
     t = trimesh.creation.icosphere(subdivisions=1, radius=0.3)
