@@ -294,7 +294,8 @@ def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
 
 @pytest.mark.xfail(strict=True, reason="issue 15, open: 0.002 % of the closed surface's area stands more "
                    "than 5 mm outside (max 7 mm), on the thigh's top beside the hip and under the "
-                   "hand: within the carve's margin (one spacing) in front of what the cameras saw")
+                   "hand, where the cameras' view grazes: there the nearest depth of a pixel's "
+                   "neighbours lies in front of the surface, so the carve does not reach it")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
