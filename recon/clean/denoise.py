@@ -152,7 +152,7 @@ def local_fits(points: np.ndarray, query: np.ndarray, neighbours: np.ndarray, sc
             res = []
             for a, (f, beta) in zip(starts, made):
                 rows = sample[(sample >= a) & (sample < a + step)] - a
-                res.append((f.z[rows] - (beta[rows, None, :] @ f.mono[rows, :6])[:, 0])[base[a + rows] > 0])
+                res.append((f.z[rows] - f.predict(beta[rows], rows))[base[a + rows] > 0])
             res = np.concatenate(res)
         else:  # the sample's own
             sub = _Patch(points[neighbours[sample]], query[sample], base[sample])
@@ -239,9 +239,11 @@ class _Patch:
         diagonal += 1e-30
         return np.linalg.solve(ata, atz[..., None])[..., 0]
 
-    def predict(self, beta: np.ndarray) -> np.ndarray:
-        """(m, k) heights of the quadratics ``beta`` (m, 6) at the neighbours."""
-        return (beta[:, None, :] @ self.mono[:, :6])[:, 0]
+    def predict(self, beta: np.ndarray, rows=None) -> np.ndarray:
+        """(m, k) heights of the quadratics ``beta`` (m, 6) at the neighbours (of the patches
+        ``rows`` alone, when given, with ``beta`` their fits)."""
+        mono = self.mono if rows is None else self.mono[rows]
+        return (beta[:, None, :] @ mono[:, :6])[:, 0]
 
 
 def _monomials(x, y):

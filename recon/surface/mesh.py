@@ -907,10 +907,10 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         jobs[k] = (j, idx, shape.replace(closed=tuple(closed)))
     jobs += list(extra)
 
-    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), and
-    # the boundary peel without our hull_edge_min
+    # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), the
+    # boundary peel without our hull_edge_min, and faces turned by the view alone
     sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0,
-                                                               cover_max_edge=0.0)
+                                                               cover_max_edge=0.0, orient_model_weight=0.0)
 
     def run(job):
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
@@ -939,8 +939,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         if view_dir is not None:
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
-    faces = orient_faces(points, faces, sec, fit, view_dir,
-                         model_weight=params.orient_model_weight if drop_inner else 0.0)
+    faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=sp.orient_model_weight)
     return faces, sec, skipped
 
 
