@@ -123,6 +123,55 @@ def test_planted_misregistration_between_heads_is_recovered():
     assert np.sqrt(np.mean(np.sum((back - p[head == 1]) ** 2, axis=1))) < 0.0005
 
 
+def ring_of_heads(n_heads=6, half_field=50.0, n=8000, seed=0):
+    """The bumpy surface of `two_head_surface` measured by ``n_heads`` heads around the vertical
+    axis, each sampling its own points on the side it faces (within ``half_field`` degrees of its
+    azimuth), so that each overlaps only its two neighbours, like the towers of a whole-body scanner.
+
+    Returns points (n', 3), head (n',), centre (3,).
+    """
+    rng = np.random.default_rng(seed)
+    parts, heads = [], []
+    for h in range(n_heads):
+        u = rng.normal(size=(8 * n, 3))
+        u /= np.linalg.norm(u, axis=1)[:, None]
+        az = 2 * np.pi * h / n_heads
+        facing = u[:, 0] * np.cos(az) + u[:, 1] * np.sin(az)
+        u = u[facing > np.cos(np.radians(half_field)) * np.hypot(u[:, 0], u[:, 1])][:n]
+        r = 0.3 * (1 + 0.1 * np.sin(5 * u[:, 0]) * np.cos(4 * u[:, 2]) + 0.05 * np.sin(7 * u[:, 1]))
+        parts.append(u * r[:, None] * [1.0, 0.6, 2.5])
+        heads.append(np.full(len(u), h))
+    points, head = np.concatenate(parts), np.concatenate(heads)
+    return points, head, (points.min(axis=0) + points.max(axis=0)) / 2
+
+
+def test_a_ring_of_heads_is_registered_as_one_piece():
+    # six heads, each misplaced by 0.5 degrees and 2 mm and overlapping its neighbours over 20
+    # degrees of azimuth: the corrections must agree around the ring (head by head, each
+    # registered to the others in turn, left 0.8 degrees between some)
+    p, head, c = ring_of_heads()
+    rng = np.random.default_rng(3)
+    q = p.copy()
+    motions = []
+    for h in range(6):
+        axis = rng.normal(size=3)
+        rot = rotvec(np.radians(0.5) * axis / np.linalg.norm(axis))
+        shift = rng.normal(size=3)
+        shift *= 0.002 / np.linalg.norm(shift)
+        q[head == h] = (p[head == h] - c) @ rot.T + c + shift
+        motions.append((rot, shift))
+    reg = register_heads(q, head, spacing=0.006)
+    assert (reg.observable == 6).all()
+    for a in range(6):
+        for b in range(a + 1, 6):
+            # what is left between heads a and b: each head's planted motion, then its correction
+            ra, rb = reg.rotation[a] @ motions[a][0], reg.rotation[b] @ motions[b][0]
+            assert np.degrees(np.linalg.norm(_log_rotation(ra.T @ rb))) < 0.1
+            ta = reg.rotation[a] @ motions[a][1] + reg.translation[a]
+            tb = reg.rotation[b] @ motions[b][1] + reg.translation[b]
+            assert 1000 * np.linalg.norm(ta - tb) < 0.5
+
+
 def test_heads_that_do_not_overlap_are_left_alone():
     # front and rear heads of a cylinder meet only at the silhouettes, seen edge on
     p, vd, head, true = scanned_cylinder(0.001)

@@ -1,21 +1,23 @@
 """Registration between scanner heads: robust point-to-surface ICP on their overlap (beyond the paper).
 
-The paper leaves the misalignment between its cameras to future work. Each head's points are
-moved rigidly onto the surface the other heads measured, where they overlap: a point of one head
-is paired with the robust quadratic surface (`recon.clean.denoise.local_fits`) of the other heads'
-points near it, where the two surfaces are alike in direction (PCA normals within
-``normal_cos``), and the point-to-surface distances are minimised by Gauss-Newton with Tukey
-weights on the MAD scale of the residuals, the pairing distance shrinking as the fit converges.
+The paper leaves the misalignment between its cameras to future work. Where two heads overlap, a
+point of one is paired with the robust quadratic surface (`recon.clean.denoise.local_fits`) of
+the other's points near it, where the two surfaces are alike in direction (PCA normals within
+``normal_cos``). The point-to-surface distances of every overlapping pair of heads are minimised
+together over all heads' rigid motions (a global multi-view ICP: Gauss-Newton with Tukey weights
+on the MAD scale of the residuals, the pairing distance shrinking as the fit converges), so a
+ring of heads that each overlap only their neighbours is closed as one piece.
 
 Only where the heads really overlap (both measured the same surface, their points interleaved)
-is the offset measured. Heads stacked in a tower overlap over tens of centimetres and are
-registered to a few hundredths of a degree; the paper's front and rear heads meet only along
-the silhouettes, seen edge on, where neither measures the surface beyond its own side: a head
-with less than ``min_overlap`` of its points in an overlap is left as it is by `register_heads`;
+is the offset measured. Heads in towers overlap over tens of centimetres and are registered to
+within about a tenth of a degree; the paper's front and rear heads meet only along the silhouettes,
+seen edge on, where neither measures the surface beyond its own side: a head with less than
+``min_overlap`` of its points in an overlap is left as it is by `register_heads`;
 `register_silhouettes` registers such a pair by their common outline instead. Directions of the
 motion whose standard error exceeds ``max_error`` are not moved either (truncated Gauss-Newton on
-the eigenvectors of the normal matrix); `Registration` reports how many were estimated. The
-heads are moved symmetrically (their mean motion removed), so no head is taken as exact.
+the eigenvectors of the normal matrix): the motion of the whole scanner, and between two towers
+facing each other the turns across and the shift along their view; `Registration` reports how
+many directions were estimated. The heads' mean motion is removed, so no head is taken as exact.
 """
 
 from __future__ import annotations
@@ -41,10 +43,10 @@ class Registration:
     center : (3,) float
         Centre of the rotations (the cloud's bounding-box centre), metres.
     pairs : (h,) int
-        Overlap pairs of each head in the last round.
+        Overlap pairs of each head's points in the last step.
     observable : (h,) int
-        Of the 6 motion directions, how many were estimated for each head (the rest: their
-        standard error exceeded ``max_error``).
+        Of the 6 motion directions, how many were estimated for each head against the heads it
+        overlaps (the rest: their standard error exceeded ``max_error``).
     """
 
     rotation: np.ndarray
@@ -95,17 +97,25 @@ def truncated_step(J: np.ndarray, w: np.ndarray, res: np.ndarray, scale: float, 
     """One weighted Gauss-Newton step for residuals ``res`` (m,) with Jacobian ``J`` (m, k) and
     weights ``w`` (m,), truncated to the eigen-directions of the normal matrix whose standard error
     at ``scale`` is below ``max_error`` (a rotation's in metres at 1 m): the data move only what
-    they measure. Returns the step (k,) and which eigen-directions it used (k,) bool."""
+    they measure. Returns the step (k,) and the eigen-directions it used (k, kept) as columns."""
     lam, vec = np.linalg.eigh(J.T @ (w[:, None] * J))
     keep = scale / np.sqrt(np.maximum(lam, 1e-300)) < max_error
-    return -vec[:, keep] @ ((vec[:, keep].T @ (J.T @ (w * res))) / lam[keep]), keep
+    return -vec[:, keep] @ ((vec[:, keep].T @ (J.T @ (w * res))) / lam[keep]), vec[:, keep]
 
 
 def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: float = 0.005,
-                   iterations: int = 20, rounds: int = 2, max_error: float = 5e-4, min_pairs: int = 200,
+                   iterations: int = 30, max_error: float = 5e-4, min_pairs: int = 200,
                    min_overlap: float = 0.05, neighbours: int = 16, normal_cos: float = 0.7,
-                   max_pairs: int = 2000) -> Registration:
-    """Estimate each head's rigid correction from its overlap with the other heads.
+                   max_pairs: int = 1000) -> Registration:
+    """Estimate every head's rigid correction at once from the overlaps between heads.
+
+    Each ordered pair of overlapping heads (a, b) contributes a sample of a's points near b's
+    surface; a residual is the distance of such a point from the robust quadratic surface of b's
+    points around it, and depends on the motions of both a and b. All heads' motions are solved
+    together by Gauss-Newton with Tukey weights (a global multi-view ICP): a ring of heads, each
+    overlapping only its neighbours, converges as one piece instead of head by head. The motion
+    of the whole scanner, which no residual sees, and any relative motion the overlaps do not
+    measure are left out by the truncated step (`truncated_step`).
 
     Parameters
     ----------
@@ -119,22 +129,20 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
         spacings), metres. Pairs may be twice as far apart at the start; the limit then shrinks
         towards 4 robust scales of the residuals plus 2 spacings.
     iterations : int
-        Gauss-Newton steps per head and round, at most.
-    rounds : int
-        Every head is registered against the others, this many times over.
+        Gauss-Newton steps, at most.
     max_error : float
         A motion direction is estimated only when its standard error is below this, metres (a
         rotation's at 1 m from the centre).
     min_pairs : int
-        A head with fewer overlap pairs is left as it is;
+        A pair of heads with fewer points in its overlap is not used;
     min_overlap : float
-        also when less than this fraction of its points overlap another head.
+        neither is a head with less than this fraction of its points near another head.
     neighbours : int
         Points of each surface fit and normal.
     normal_cos : float
         Pairs whose (unsigned) normals make a cosine below this are not paired.
     max_pairs : int
-        Points of each head's overlap used, at most (a seeded sample).
+        Points of each pair's overlap used, at most (a seeded sample).
 
     Returns
     -------
@@ -142,65 +150,88 @@ def register_heads(points: np.ndarray, head: np.ndarray, spacing: float, reach: 
     """
     from scipy.spatial import cKDTree
 
+    points = np.asarray(points, dtype=np.float64)
     head = np.asarray(head).astype(np.int64)
     nh = int(head.max()) + 1 if len(head) else 0
     center = (points.min(axis=0) + points.max(axis=0)) / 2
-    rot = np.repeat(np.eye(3)[None], max(nh, 1), axis=0)
-    trans = np.zeros((max(nh, 1), 3))
+    rot = np.repeat(np.eye(3)[None], max(nh, 1), axis=0)[:nh]
+    trans = np.zeros((nh, 3))
     pairs = np.zeros(nh, dtype=int)
     observable = np.zeros(nh, dtype=int)
-    if nh < 2:
-        return Registration(rot[:nh], trans[:nh], center, pairs, observable)
     k = int(min(neighbours, len(points) - 1))
     reach = max(reach, 2 * spacing)
-    cur = np.array(points, dtype=np.float64)
-    for _ in range(rounds):
+    own = [np.flatnonzero(head == h) for h in range(nh)]
+    big = [len(i) >= min_pairs for i in own]
+    trees = [cKDTree(points[i]) if b else None for i, b in zip(own, big)]
+    links = []  # (a, b, a's overlap points, their normals): each head's trees stay in its own frame
+    for a in range(nh):
+        if not big[a]:
+            continue
+        cand = own[a]
+        if len(cand) > 20 * max_pairs:  # the overlaps are found on a seeded sample (speed only)
+            cand = np.sort(np.random.default_rng(a).choice(cand, 20 * max_pairs, replace=False))
+        per = len(own[a]) / len(cand)  # head a's points per candidate
+        near = {b: np.isfinite(trees[b].query(points[cand], distance_upper_bound=reach)[0])
+                for b in range(nh) if b != a and big[b]}
+        if per * np.logical_or.reduce(list(near.values())).sum() < max(min_pairs, min_overlap * len(own[a])):
+            continue
+        for b, m in near.items():
+            idx = cand[m]
+            if per * len(idx) < min_pairs:
+                continue
+            if len(idx) > max_pairs:  # a seeded sample of the overlap (speed only)
+                idx = np.sort(np.random.default_rng([a, b]).choice(idx, max_pairs, replace=False))
+            p0 = points[idx]
+            links.append((a, b, p0, _normals(p0, points[own[a]], trees[a], k)))
+    if not links:
+        return Registration(rot, trans, center, pairs, observable)
+    limit = 2 * reach
+    used = np.zeros((6 * nh, 0))
+    for _ in range(iterations):
+        res, rows, cols = [], [], []
+        count = np.zeros(nh, dtype=int)
+        for a, b, p0, n0 in links:
+            p = (p0 - center) @ rot[a].T + center + trans[a]
+            q = (p - center - trans[b]) @ rot[b] + center  # in b's own frame
+            d, nb = trees[b].query(q, k=k)
+            ok = d[:, 0] < limit
+            fit = local_fits(points[own[b]], q[ok], nb[ok], iterations=1)
+            normal = fit.normal @ rot[b].T
+            same = np.abs(np.einsum("ij,ij->i", normal, n0[ok] @ rot[a].T)) > normal_cos
+            g = np.column_stack([np.cross(p[ok][same] - center, normal[same]), normal[same]])
+            res.append(fit.residual[same])
+            rows.append(g)
+            cols.append((a, b))
+            count[a] += len(g)
+        r = np.concatenate(res)
+        if len(r) < min_pairs:
+            break
+        J = np.zeros((len(r), 6 * nh))
+        at = 0
+        for g, (a, b) in zip(rows, cols):  # a's points move with a, b's surface with b
+            J[at:at + len(g), 6 * a:6 * a + 6] = g
+            J[at:at + len(g), 6 * b:6 * b + 6] = -g
+            at += len(g)
+        scale = robust_scale(r, floor=1e-5)
+        step, used = truncated_step(J, tukey_weights(r, scale), r, scale, max_error)
         for h in range(nh):
-            mine = head == h
-            src, dst = np.flatnonzero(mine), np.flatnonzero(~mine)
-            if len(src) < min_pairs or len(dst) < min_pairs:
-                continue
-            tree = cKDTree(cur[dst])
-            near = np.isfinite(tree.query(cur[src], distance_upper_bound=reach)[0])
-            if near.sum() < max(min_pairs, min_overlap * len(src)):
-                continue
-            src = src[near]
-            if len(src) > max_pairs:  # a seeded sample of the overlap (speed only)
-                src = np.sort(np.random.default_rng(h).choice(src, max_pairs, replace=False))
-            p0 = cur[src]
-            n0 = _normals(p0, cur[mine], cKDTree(cur[mine]), k)
-            r_h, t_h = np.eye(3), np.zeros(3)
-            limit = 2 * reach
-            for _ in range(iterations):
-                p = (p0 - center) @ r_h.T + center + t_h
-                d, nb = tree.query(p, k=k)
-                ok = d[:, 0] < limit
-                fit = local_fits(cur[dst], p[ok], nb[ok], iterations=1)
-                same = np.abs(np.einsum("ij,ij->i", fit.normal, n0[ok] @ r_h.T)) > normal_cos
-                ok[ok] = same
-                if ok.sum() < min_pairs:
-                    break
-                res, nt, ps = fit.residual[same], fit.normal[same], p[ok]
-                scale = robust_scale(res, floor=1e-5)
-                J = np.column_stack([np.cross(ps - center, nt), nt])
-                step, keep = truncated_step(J, tukey_weights(res, scale), res, scale, max_error)
-                dr = rotvec(step[:3])
-                r_h = dr @ r_h
-                t_h = dr @ t_h + step[3:]
-                limit = max(4 * scale + 2 * spacing, 0.7 * limit)
-                pairs[h], observable[h] = int(ok.sum()), int(keep.sum())
-                if np.abs(step).max() < 1e-6:
-                    break
-            cur[mine] = (cur[mine] - center) @ r_h.T + center + t_h
-            rot[h] = r_h @ rot[h]
-            trans[h] = r_h @ trans[h] + t_h
+            dr = rotvec(step[6 * h:6 * h + 3])
+            rot[h] = dr @ rot[h]
+            trans[h] = dr @ trans[h] + step[6 * h + 3:6 * h + 6]
+        pairs = count
+        limit = max(4 * scale + 2 * spacing, 0.7 * limit)
+        if np.abs(step).max() < 1e-6:
+            break
+    # the directions estimated for each head: the rank of the kept eigen-directions on its motion
+    for h in range(nh):
+        observable[h] = int((np.linalg.svd(used[6 * h:6 * h + 6], compute_uv=False) > 0.25).sum())
     # remove the heads' mean motion: the corrections are relative, no head is exact
-    back = rotvec(-np.mean([_log_rotation(r) for r in rot[:nh]], axis=0))
-    t_mean = trans[:nh].mean(axis=0)
+    back = rotvec(-np.mean([_log_rotation(x) for x in rot], axis=0))
+    t_mean = trans.mean(axis=0)
     for h in range(nh):
         rot[h] = back @ rot[h]
         trans[h] = back @ (trans[h] - t_mean)
-    return Registration(rot[:nh], trans[:nh], center, pairs, observable)
+    return Registration(rot, trans, center, pairs, observable)
 
 
 #: Outline points of each line of `register_silhouettes`' outline.
@@ -298,7 +329,7 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     motions[0, :3], motions[1, 3:], motions[2, 3:] = a, basis[0], basis[1]
     r_1, t_1 = np.eye(3), np.zeros(3)
     limit = 3 * spacing
-    keep = np.zeros(6, dtype=bool)
+    used = np.zeros((3, 0))
     for _ in range(iterations):
         p = p0 @ r_1.T + t_1
         dist, j = tree.query(p @ basis.T)
@@ -311,7 +342,7 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
         J = np.column_stack([np.cross(p, n), n]) @ motions.T    # the rotation about a, the shifts across
         # standard errors at the residuals' scale, at most the outline's own resolution (a cell's
         # uniform spread): the residuals of a wrong start would hide the directions that correct them
-        step, keep = truncated_step(J, tukey_weights(res, scale), res, min(scale, spacing / np.sqrt(12)),
+        step, used = truncated_step(J, tukey_weights(res, scale), res, min(scale, spacing / np.sqrt(12)),
                                     max_error)
         step = motions.T @ step
         dr = rotvec(step[:3])
@@ -324,4 +355,4 @@ def register_silhouettes(points: np.ndarray, head: np.ndarray, view_dir: np.ndar
     rot = np.stack([half.T, half])
     trans = np.stack([-t_1 / 2, t_1 / 2])
     pairs = np.array([len(outline[0]), int(ok.sum())])
-    return Registration(rot, trans, center, pairs, np.full(2, int(keep.sum())))
+    return Registration(rot, trans, center, pairs, np.full(2, used.shape[1]))
