@@ -330,13 +330,18 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
     vertex[near] = used[i0]
     fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
-    if len(fine) and k > 1:
-        d, i = tree.query(at[fine], k)
+    for s in range(0, len(fine) if k > 1 else 0, CHUNK):   # in chunks: the (m, k, 6) gathers stay in cache
+        f = fine[s:s + CHUNK]
+        d, i = tree.query(at[f], k)
         pn = vpn[i]     # (m, k, 6): one gather of the positions and normals
-        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - pn[..., :3], pn[..., 3:])
+        along = np.einsum("mkj,mkj->mk", at[f, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
-        dist[fine] = -(w * along).sum(axis=1) / w.sum(axis=1)
+        dist[f] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
+
+
+#: Query positions per chunk of `seen_distance`'s weighted mean.
+CHUNK = 4096
 
 
 #: Spacings beside the open mesh (past a hole's rim): up to BAND_BESIDE the seen surface's band
@@ -485,6 +490,8 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return
+    if not (F.flags.c_contiguous and lab.flags.c_contiguous):
+        raise ValueError("_seen_band writes F and lab in place: they must be C-contiguous")
     index = seen_index(vertices, faces)
     used = index[0]
     shape = np.array(F.shape)
@@ -503,31 +510,44 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     margin = np.sqrt(3) * voxel
     # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
     tree = index[2]
-    dc, ic = tree.query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
-    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin,
-                                     index=index, nearest=(dc, ic))
+    at = lo + voxel * gc
+    # a coarse point is kept only within this of a vertex (its offsets along and beside within the
+    # limits below): the query need not look farther
     slack = SLACK * margin
+    kept_max = np.hypot(band * spacing + slack, BAND_BLEND * spacing + slack) * (1 + 1e-9)
+    dc, ic = tree.query(at, 1, distance_upper_bound=min(reach_m + 2 * margin, kept_max))
+    along, beside, _ = seen_distance(vertices, faces, at, spacing, k=1, reach=reach_m + 2 * margin,
+                                     index=index, nearest=(dc, ic))
     keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
                           & (beside < BAND_BLEND * spacing + slack))
-    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])     # (0, 0, 0) first
-    g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
-    inside = ((g >= 1) & (g < shape - 1)).all(axis=1)
-    g = g[inside]
+    # the 2 x 2 x 2 block of each kept coarse point, (0, 0, 0) first, as flat grid indices
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    gk = gc[keep]
+    flat = ((gk @ strides)[:, None] + (block @ strides)[None]).ravel()
+    ok = ((gk >= 1) & (gk < shape - 2)).all(axis=1)    # every block point inside the grid's border
+    inside = np.repeat(ok, 8)
+    if not ok.all():
+        g = (gk[~ok][:, None, :] + block[None]).reshape(-1, 3)
+        inside[np.repeat(~ok, 8)] = ((g >= 1) & (g < shape - 1)).all(axis=1)
+    flat = flat[inside]
     # the nearest vertex: a coarse point's is the coarse pass's (its query reached farther)
     parent = np.repeat(keep, 8)[inside]
-    own = (np.arange(len(inside)) % 8 == 0)[inside]
-    d0, i0 = np.full(len(g), np.inf), np.full(len(g), len(index[0]), dtype=np.int64)
+    own = np.tile(np.arange(8) == 0, len(keep))[inside]
+    d0, i0 = np.full(len(flat), np.inf), np.full(len(flat), len(index[0]), dtype=np.int64)
     within = own & (dc[parent] < reach_m)
     d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
     ask = ~own
-    d0[ask], i0[ask] = tree.query(lo + voxel * g[ask], 1, distance_upper_bound=reach_m)
-    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
+    at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
+    d0[ask], i0[ask] = tree.query(at[ask], 1, distance_upper_bound=reach_m)
+    dist, beside, v = seen_distance(vertices, faces, at, spacing, reach=reach_m,
                                     exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
                                     nearest=(d0, i0))
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
-    g, w = g[over], w[over]
-    F[tuple(g.T)] = w * dist[over] + (1 - w) * F[tuple(g.T)]
+    flat, w = flat[over], w[over]
+    Ff = F.reshape(-1)
+    Ff[flat] = w * dist[over] + (1 - w) * Ff[flat]
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
     vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
-    lab[tuple(g.T)] = vsec[v[over]]
+    lab.reshape(-1)[flat] = vsec[v[over]]
