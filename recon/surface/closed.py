@@ -58,17 +58,19 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
                    else slice(0, values.shape[ax]))
     box = tuple(box)
     start = np.array([b.start for b in box])
-    v = np.where(values[box] == 0, 1e-12, values[box]).astype(np.float64, copy=False)
+    v = values[box].astype(np.float64)
+    v[v == 0] = 1e-12
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
         cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2)
-        corners = cube[:, None, :] + np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])[None]
-        flat = np.ravel_multi_index(tuple(corners.reshape(-1, 3).T), v.shape).reshape(-1, 8)
-        inner = np.take_along_axis(flat, np.argmax(v.ravel()[flat], axis=1)[:, None], axis=1)[:, 0]
-        face_label = labels[box].ravel()[inner]
+        strides = np.array([v.shape[1] * v.shape[2], v.shape[2], 1])
+        corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)]) @ strides
+        flat = (cube @ strides)[:, None] + corner[None]      # (f, 8) flat indices of the cube's corners
+        inner = flat[np.arange(len(flat)), np.argmax(v.reshape(-1)[flat], axis=1)]
+        face_label = labels[box].reshape(-1)[inner]
     return origin + step * (vertices + start), faces, face_label
 
 
