@@ -142,7 +142,7 @@ class Views:
                     if GAP_Q > 0 and len(uv) > 2:    # at least the head's own gaps between points
                         from scipy.spatial import cKDTree
                         r = max(r, float(np.percentile(cKDTree(uv).query(uv, 2)[0][:, 1], GAP_Q)))
-                    occ = distance_transform_edt(distance_transform_edt(~occ) * step <= r) * step > r
+                    occ = disc_closing(occ, r, step)
                 self._nearest[i] = ((close, step), o, distance_transform_edt(~occ) * step)
             _, o, dist = self._nearest[i]
             k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)
@@ -151,6 +151,42 @@ class Views:
             d[inside] = dist[k[inside, 0], k[inside, 1]]
             out = np.minimum(out, d)
         return out
+
+
+def disc_offsets(r: float, step: float):
+    """The pixel offsets within a disc: (k,) int ``di`` and (k,) int ``dj`` with
+    ``sqrt(di**2 + dj**2) * step <= r``, the test of a Euclidean distance transform in pixels of
+    ``step`` (``r``, ``step`` in metres)."""
+    n = int(np.floor(r / step)) + 1
+    di, dj = np.mgrid[-n:n + 1, -n:n + 1]
+    inside = np.sqrt((di * di + dj * dj).astype(np.float64)) * step <= r
+    return di[inside], dj[inside]
+
+
+def disc_dilation(image: np.ndarray, r: float, step: float) -> np.ndarray:
+    """(a, b) bool: the pixels of ``image`` (a, b) bool within ``r`` of a True pixel (pixels of
+    ``step``; ``r``, ``step`` in metres), as ``distance_transform_edt(~image) * step <= r``: the
+    image shifted by every offset of the disc (`disc_offsets`), or-ed."""
+    out = np.zeros_like(image, dtype=bool)
+    a, b = image.shape
+    for di, dj in zip(*disc_offsets(r, step)):
+        if abs(di) < a and abs(dj) < b:
+            out[max(di, 0):a + min(di, 0), max(dj, 0):b + min(dj, 0)] |= \
+                image[max(-di, 0):a + min(-di, 0), max(-dj, 0):b + min(-dj, 0)]
+    return out
+
+
+def disc_closing(image: np.ndarray, r: float, step: float) -> np.ndarray:
+    """(a, b) bool: the morphological closing of ``image`` (a, b) bool by a disc of radius ``r``
+    (pixels of ``step``; metres), as ``distance_transform_edt(distance_transform_edt(~image) * step
+    <= r) * step > r`` (the erosion, like the distance transform, sees no background beyond the
+    image's border)."""
+    dilated = disc_dilation(image, r, step)
+    if dilated.all():   # no background to erode from
+        from scipy.ndimage import distance_transform_edt
+
+        return distance_transform_edt(dilated) * step > r
+    return ~disc_dilation(~dilated, r, step)
 
 
 def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float) -> np.ndarray:

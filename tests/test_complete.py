@@ -253,6 +253,25 @@ def test_beside_is_the_distance_to_the_silhouette_with_its_gaps_closed(camera):
     assert cams.beside(at, close=0.03)[0] == 0
 
 
+def test_disc_dilation_and_closing_are_the_distance_transforms_thresholds():
+    """`disc_dilation` and `disc_closing` (the silhouettes' closing in `Views.beside`) give the
+    pixels of the Euclidean distance transform's thresholds, on random images, radii (some exactly
+    on a pixel distance) and pixel sizes, and images smaller than the disc."""
+    from scipy.ndimage import distance_transform_edt
+
+    from bodyscan.recon.views import disc_closing, disc_dilation
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        img = rng.random(tuple(rng.integers(1, 40, 2))) < rng.uniform(0.002, 0.9)
+        step = rng.uniform(0.5, 3.0)
+        r = step * rng.integers(0, 6) if rng.random() < 0.3 else rng.uniform(0.0, 12.0)
+        if img.any() and (~img).any():
+            assert np.array_equal(disc_dilation(img, r, step), distance_transform_edt(~img) * step <= r)
+            want = distance_transform_edt(distance_transform_edt(~img) * step <= r) * step > r
+            assert np.array_equal(disc_closing(img, r, step), want)
+
+
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
