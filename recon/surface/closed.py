@@ -205,7 +205,9 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     n_t, n_h = R.shape
     S, Rn = field_tables(R, cell) if tables is None else tables
     rho = np.hypot(local[:, 0], local[:, 1])
-    tf = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi) / (2 * np.pi) * n_t - 0.5
+    tf = np.arctan2(local[:, 1], local[:, 0])
+    tf += (tf < 0) * (2 * np.pi)       # np.mod(., 2 pi) of the angle in [-pi, pi]
+    tf = tf / (2 * np.pi) * n_t - 0.5
     hf = np.clip((local[:, 2] - h0) / cell - 0.5, -1.0, n_h)
     t0 = np.floor(tf).astype(np.int64)
     a = tf - t0
@@ -266,12 +268,13 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
     """
     from scipy.spatial import cKDTree
 
+    vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     tri = vertices[faces]
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
-    vn = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
+    # the faces' normals summed per vertex, corner by corner in the faces' order (np.add.at's sums)
+    corner = faces.T.ravel()
+    vn = np.column_stack([np.bincount(corner, np.tile(fn[:, j], 3), len(vertices)) for j in range(3)])
     used = np.unique(faces)
     vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
     vp = vertices[used]
@@ -455,17 +458,19 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     if seen is not None and band > 0:
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
-        g = np.argwhere(F > -voxel)
-        at = lo + voxel * g
+        flat = np.flatnonzero(F > -voxel)
+        at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
         cams = Views(points, view[0], view[1], spacing)
-        cut = np.full(len(g), np.inf)
+        cut = np.full(len(flat), np.inf)
         if carve > 0:
             air = cams.air(at)
             cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
         if background > 0:    # beside every head's silhouette
             cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
-        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
-    F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
+        F.reshape(-1)[flat] = np.minimum(F.reshape(-1)[flat], cut)
+    floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
+    low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
+    np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
