@@ -229,13 +229,29 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
 def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     """`field_value` of one solid on the grid box ``i0:i1`` (origin ``lo``, step ``voxel``):
     computed on every second grid point, then on every grid point only near the solid's surface
-    (within 4 steps; elsewhere only its sign matters, and the coarse value has it)."""
+    (within 4 steps; elsewhere only its sign matters, and the coarse value has it). Grid points
+    farther from the axis than their rows' largest radius plus 4 steps (coarse) or one step (fine)
+    are -inf: their value is at most -4 steps (-1 step), below the grid's initial -``voxel``."""
     from scipy.ndimage import binary_dilation
 
     D = tuple(int(d) for d in i1 - i0)
     tables = field_tables(R, cell)
+    n_h = R.shape[1]
+    # per row of cells, a bound of the bilinear radius (field_value's rows r0, r1 of a point)
+    top = np.max(tables[1], axis=0) * (1 + 1e-9) + 1e-12
+
+    def value(g, margin):
+        local = shape.local(lo + voxel * g)
+        hc = np.clip((local[:, 2] - h0) / cell - 0.5, 0, n_h - 1)
+        r0 = np.minimum(np.floor(hc).astype(np.int64), max(n_h - 2, 0))
+        m = np.maximum(top[r0], top[np.minimum(r0 + 1, n_h - 1)]) + margin
+        ask = np.flatnonzero(local[:, 0] ** 2 + local[:, 1] ** 2 <= m * m * (1 + 1e-9))
+        out = np.full(len(g), -np.inf)
+        out[ask] = field_value(R, h0, cell, local[ask], h1, tables)
+        return out
+
     gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
-    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1, tables).reshape(tuple((d + 1) // 2 for d in D))
+    vc = value(gc, 4 * voxel).reshape(tuple((d + 1) // 2 for d in D))
     near = binary_dilation(np.abs(vc) < 4 * voxel)
     up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
     out = np.ascontiguousarray(up(vc))
@@ -243,7 +259,7 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     todo[::2, ::2, ::2] = False      # the coarse points themselves have their value
     fine = np.flatnonzero(todo)
     g = np.column_stack(np.unravel_index(fine, D)) + i0
-    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1, tables)
+    out.ravel()[fine] = value(g, voxel)
     return out
 
 
