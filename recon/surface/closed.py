@@ -58,19 +58,21 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
                    else slice(0, values.shape[ax]))
     box = tuple(box)
     start = np.array([b.start for b in box])
-    v = values[box].astype(np.float64)
-    v[v == 0] = 1e-12
+    # scikit-image marches a float32 copy
+    v = values[box].astype(np.float32)
+    v[values[box] == 0] = np.float32(1e-12)
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
-        cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2)
-        strides = np.array([v.shape[1] * v.shape[2], v.shape[2], 1])
+        cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2) + start
+        strides = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])
         corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)]) @ strides
         flat = (cube @ strides)[:, None] + corner[None]      # (f, 8) flat indices of the cube's corners
-        inner = flat[np.arange(len(flat)), np.argmax(v.reshape(-1)[flat], axis=1)]
-        face_label = labels[box].reshape(-1)[inner]
+        at = np.ravel(values)[flat]
+        inner = flat[np.arange(len(flat)), np.argmax(np.where(at == 0, 1e-12, at), axis=1)]
+        face_label = np.ravel(labels)[inner]
     return origin + step * (vertices + start), faces, face_label
 
 
