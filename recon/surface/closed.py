@@ -342,13 +342,13 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         as ``index``'s tree answers a query bounded by ``reach`` (queried here without it).
     """
     used, vpn, tree = seen_index(vertices, faces) if index is None else index
-    vp, vn = vpn[:, :3], vpn[:, 3:]
     k = min(k, len(used))
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
     d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
-    along0 = np.einsum("mj,mj->m", at[near] - vp[i0], vn[i0])
+    pn0 = vpn[i0]
+    along0 = np.einsum("mj,mj->m", at[near] - pn0[:, :3], pn0[:, 3:])
     dist[near] = -along0
     beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
     vertex[near] = used[i0]
@@ -470,8 +470,8 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         val = _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1)
         box = tuple(slice(a_, b_) for a_, b_ in zip(i0, i1))
         better = val > F[box]
-        F[box] = np.where(better, val, F[box])
-        lab[box] = np.where(better, j, lab[box])
+        np.copyto(F[box], val, where=better)
+        lab[box][better] = j
     # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
     if seen is not None and band > 0:
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
