@@ -107,7 +107,7 @@ class Views:
             near = head[4]
             k, dx, ok = self.pixels(i, at)
             a = np.full(len(at), -np.inf)
-            zk = near[k[ok, 0], k[ok, 1]]
+            zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
             a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
             out = np.maximum(out, a)
         return out
@@ -148,7 +148,7 @@ class Views:
             k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)
             inside = ((k >= 0) & (k < np.array(dist.shape))).all(axis=1)
             d = np.full(len(at), self.PAD * self.spacing)
-            d[inside] = dist[k[inside, 0], k[inside, 1]]
+            d[inside] = dist.take(k[inside, 0] * dist.shape[1] + k[inside, 1])
             out = np.minimum(out, d)
         return out
 

@@ -66,11 +66,11 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
-        cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2) + start
+        cube = np.minimum(np.floor(vertices.take(faces, axis=0).mean(axis=1)).astype(np.int64), np.array(v.shape) - 2) + start
         strides = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])
         corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)]) @ strides
         flat = (cube @ strides)[:, None] + corner[None]      # (f, 8) flat indices of the cube's corners
-        at = np.ravel(values)[flat]
+        at = np.ravel(values).take(flat)
         inner = flat[np.arange(len(flat)), np.argmax(np.where(at == 0, 1e-12, at), axis=1)]
         face_label = np.ravel(labels)[inner]
     return origin + step * (vertices + start), faces, face_label
@@ -288,7 +288,7 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
 
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    tri = vertices[faces]
+    tri = vertices.take(faces, axis=0)
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
     # the faces' normals summed per vertex, corner by corner in the faces' order (np.add.at's sums)
     corner = faces.T.ravel()
@@ -347,17 +347,18 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
-    pn0 = vpn[i0]
-    along0 = np.einsum("mj,mj->m", at[near] - pn0[:, :3], pn0[:, 3:])
+    pn0 = vpn.take(i0, axis=0)     # (take: a faster gather of rows than indexing)
+    along0 = np.einsum("mj,mj->m", at.take(near, axis=0) - pn0[:, :3], pn0[:, 3:])
     dist[near] = -along0
     beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
     vertex[near] = used[i0]
     fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
     for s in range(0, len(fine) if k > 1 else 0, CHUNK):   # in chunks: the (m, k, 6) gathers stay in cache
         f = fine[s:s + CHUNK]
-        d, i = tree.query(at[f], k)
-        pn = vpn[i]     # (m, k, 6): one gather of the positions and normals
-        along = np.einsum("mkj,mkj->mk", at[f, None, :] - pn[..., :3], pn[..., 3:])
+        a = at.take(f, axis=0)
+        d, i = tree.query(a, k)
+        pn = vpn.take(i, axis=0)     # (m, k, 6): one gather of the positions and normals
+        along = np.einsum("mkj,mkj->mk", a[:, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
         dist[f] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
@@ -485,7 +486,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
             cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
         if background > 0:    # beside every head's silhouette
             cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
-        F.reshape(-1)[flat] = np.minimum(F.reshape(-1)[flat], cut)
+        F.reshape(-1)[flat] = np.minimum(F.reshape(-1).take(flat), cut)
     floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
     low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
     np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
@@ -564,7 +565,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
     ask = ~own
     at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
-    d0[ask], i0[ask] = tree.query(at[ask], 1, distance_upper_bound=reach_m)
+    d0[ask], i0[ask] = tree.query(at.take(np.flatnonzero(ask), axis=0), 1, distance_upper_bound=reach_m)
     dist, beside, v = seen_distance(vertices, faces, at, spacing, reach=reach_m,
                                     exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
                                     nearest=(d0, i0))
@@ -572,7 +573,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     flat, w = flat[over], w[over]
     Ff = F.reshape(-1)
-    Ff[flat] = w * dist[over] + (1 - w) * Ff[flat]
+    Ff[flat] = w * dist[over] + (1 - w) * Ff.take(flat)
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
     vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
     lab.reshape(-1)[flat] = vsec[v[over]]
