@@ -87,25 +87,32 @@ class Views:
             self._uv.append(uv)
         self._nearest = [None] * len(self.heads)
 
-    def pixels(self, i: int, at: np.ndarray):
+    def project(self, at: np.ndarray) -> list:
+        """Per head, its view of positions ``at`` (m, 3): image coordinates (m, 2) float, metres,
+        and depth toward the camera (m,) float; `air` and `beside` take it as ``projected`` (the
+        positions projected once for both)."""
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
+        return [head[0](at) for head in self.heads]
+
+    def pixels(self, i: int, at: np.ndarray, projected=None):
         """Head ``i``'s view of positions ``at`` (m, 3): pixel (m, 2) int, depth toward the camera
-        (m,), and (m,) bool inside its picture."""
+        (m,), and (m,) bool inside its picture (``projected``: head ``i``'s `project` of ``at``)."""
         project, o, shape = self.heads[i][:3]
-        xy, dx = project(np.asarray(at, dtype=np.float64).reshape(-1, 3))
+        xy, dx = project(np.asarray(at, dtype=np.float64).reshape(-1, 3)) if projected is None else projected
         k = np.floor((xy - o) / self.spacing).astype(np.int64)
         return k, dx, ((k >= 0) & (k < np.array(shape))).all(axis=1)
 
-    def air(self, at: np.ndarray) -> np.ndarray:
+    def air(self, at: np.ndarray, projected=None) -> np.ndarray:
         """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
         saw (its depth toward the camera beyond the nearest seen point of its pixel and the eight
         around it: a pixel finer than the scan's rows holds no point of its own); positive is air
         the camera looked through, -inf where no camera saw a point along that line or the eight
-        around it (unknown; beside the silhouettes: `beside`)."""
+        around it (unknown; beside the silhouettes: `beside`). ``projected``: `project` of ``at``."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), -np.inf)
         for i, head in enumerate(self.heads):
             near = head[4]
-            k, dx, ok = self.pixels(i, at)
+            k, dx, ok = self.pixels(i, at, None if projected is None else projected[i])
             a = np.full(len(at), -np.inf)
             zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
             a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
@@ -115,7 +122,7 @@ class Views:
     #: Margin of `beside`'s images around the points, pixels.
     PAD = 4
 
-    def beside(self, at: np.ndarray, close: float = 0.0, step=None) -> np.ndarray:
+    def beside(self, at: np.ndarray, close: float = 0.0, step=None, projected=None) -> np.ndarray:
         """(m,) how far (metres, in the picture) each position ``at`` (m, 3) lies beside the
         silhouettes of every head: per head, the distance from its image to the head's silhouette,
         the least over the heads (0 within a silhouette). A head's silhouette is the image of the
@@ -123,7 +130,7 @@ class Views:
         gaps between neighbouring points filled, its outline kept; at least the head's ``GAP_Q``-th
         percentile gap between neighbouring points), in sub-pixels of ``step``
         metres (default a quarter pixel); positions more than ``PAD`` pixels beside the points
-        are at least that far."""
+        are at least that far. ``projected``: `project` of ``at``."""
         from scipy.ndimage import distance_transform_edt
 
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
@@ -145,7 +152,8 @@ class Views:
                     occ = disc_closing(occ, r, step)
                 self._nearest[i] = ((close, step), o, distance_transform_edt(~occ) * step)
             _, o, dist = self._nearest[i]
-            k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)
+            xy = head[0](at)[0] if projected is None else projected[i][0]
+            k = np.floor((xy - o) / step).astype(np.int64)
             inside = ((k >= 0) & (k < np.array(dist.shape))).all(axis=1)
             d = np.full(len(at), self.PAD * self.spacing)
             d[inside] = dist.take(k[inside, 0] * dist.shape[1] + k[inside, 1])

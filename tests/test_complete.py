@@ -251,6 +251,9 @@ def test_beside_is_the_distance_to_the_silhouette_with_its_gaps_closed(camera):
     closed = cams.beside(at, close=0.005)
     assert abs(closed[0] - open_[0]) < 0.0015 and closed[1] == 0 and closed[3] == 0
     assert cams.beside(at, close=0.03)[0] == 0
+    projected = cams.project(at)     # projected once for both: the same values
+    assert np.array_equal(cams.beside(at, close=0.005, projected=projected), closed)
+    assert np.array_equal(cams.air(at, projected), cams.air(at))
 
 
 def test_disc_dilation_and_closing_are_the_distance_transforms_thresholds():

@@ -480,12 +480,13 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         flat = np.flatnonzero(F > -voxel)
         at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
         cams = Views(points, view[0], view[1], spacing)
+        projected = cams.project(at)     # once for the carve and the background
         cut = np.full(len(flat), np.inf)
         if carve > 0:
-            air = cams.air(at)
+            air = cams.air(at, projected)
             cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
         if background > 0:    # beside every head's silhouette
-            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
+            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3, projected))
         F.reshape(-1)[flat] = np.minimum(F.reshape(-1).take(flat), cut)
     floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
     low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
