@@ -228,6 +228,10 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     return np.minimum(bil(Rn) - rho, s)
 
 
+#: Grid points per call of `field_value` in `_solid_on_grid`.
+FIELD_CHUNK = 16384
+
+
 def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     """`field_value` of one solid on the grid box ``i0:i1`` (origin ``lo``, step ``voxel``):
     computed on every second grid point, then on every grid point only near the solid's surface
@@ -249,7 +253,9 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
         m = np.maximum(top[r0], top[np.minimum(r0 + 1, n_h - 1)]) + margin
         ask = np.flatnonzero(local[:, 0] ** 2 + local[:, 1] ** 2 <= m * m * (1 + 1e-9))
         out = np.full(len(g), -np.inf)
-        out[ask] = field_value(R, h0, cell, local[ask], h1, tables)
+        for s in range(0, len(ask), FIELD_CHUNK):   # in chunks: field_value's temporaries stay in cache
+            part = ask[s:s + FIELD_CHUNK]
+            out[part] = field_value(R, h0, cell, local.take(part, axis=0), h1, tables)
         return out
 
     gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
