@@ -228,7 +228,7 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     return np.minimum(bil(Rn) - rho, s)
 
 
-#: Grid points per call of `field_value` in `_solid_on_grid`.
+#: Grid points per call of `field_value` in `_solid_on_grid`, and of the cameras' cut in `closed_surface`.
 FIELD_CHUNK = 16384
 
 
@@ -484,16 +484,18 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
         flat = np.flatnonzero(F > -voxel)
-        at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
         cams = Views(points, view[0], view[1], spacing)
-        projected = cams.project(at)     # once for the carve and the background
-        cut = np.full(len(flat), np.inf)
-        if carve > 0:
-            air = cams.air(at, projected)
-            cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
-        if background > 0:    # beside every head's silhouette
-            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3, projected))
-        F.reshape(-1)[flat] = np.minimum(F.reshape(-1).take(flat), cut)
+        for s in range(0, len(flat), FIELD_CHUNK):   # in chunks: the temporaries stay in cache
+            part = flat[s:s + FIELD_CHUNK]
+            at = lo + voxel * np.column_stack(np.unravel_index(part, F.shape))
+            projected = cams.project(at)     # once for the carve and the background
+            cut = np.full(len(part), np.inf)
+            if carve > 0:
+                air = cams.air(at, projected)
+                cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
+            if background > 0:    # beside every head's silhouette
+                cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3, projected))
+            F.reshape(-1)[part] = np.minimum(F.reshape(-1).take(part), cut)
     floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
     low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
     np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
