@@ -66,7 +66,9 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
-        cube = np.minimum(np.floor(vertices.take(faces, axis=0).mean(axis=1)).astype(np.int64), np.array(v.shape) - 2) + start
+        mean = (vertices.take(faces[:, 0], axis=0) + vertices.take(faces[:, 1], axis=0)
+                + vertices.take(faces[:, 2], axis=0)) / np.float32(3)      # the faces' centres, as np.mean
+        cube = np.minimum(np.floor(mean).astype(np.int64), np.array(v.shape) - 2) + start
         strides = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])
         corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)]) @ strides
         flat = (cube @ strides)[:, None] + corner[None]      # (f, 8) flat indices of the cube's corners
@@ -299,7 +301,7 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
     # the faces' normals summed per vertex, corner by corner in the faces' order (np.add.at's sums)
     corner = faces.T.ravel()
     vn = np.column_stack([np.bincount(corner, np.tile(fn[:, j], 3), len(vertices)) for j in range(3)])
-    used = np.unique(faces)
+    used = np.flatnonzero(np.bincount(corner, minlength=len(vertices)))     # np.unique(faces)
     vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
     vp = vertices[used]
     return used, np.column_stack([vp, vn]), cKDTree(vp)
@@ -584,17 +586,18 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
                                      index=index, nearest=(dc, ic))
     keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
                           & (beside < BAND_BLEND * spacing + slack))
-    # the 2 x 2 x 2 block of each kept coarse point, (0, 0, 0) first, as flat grid indices
+    # the 2 x 2 x 2 block of each kept coarse point, (0, 0, 0) first, and their flat grid indices
     strides = np.array([shape[1] * shape[2], shape[2], 1])
     block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
     gk = gc[keep]
-    flat = ((gk @ strides)[:, None] + (block @ strides)[None]).ravel()
+    g = (gk[:, None, :] + block[None]).reshape(-1, 3)
     ok = ((gk >= 1) & (gk < shape - 2)).all(axis=1)    # every block point inside the grid's border
     inside = np.repeat(ok, 8)
     if not ok.all():
-        g = (gk[~ok][:, None, :] + block[None]).reshape(-1, 3)
-        inside[np.repeat(~ok, 8)] = ((g >= 1) & (g < shape - 1)).all(axis=1)
-    flat = flat[inside]
+        edge = np.repeat(~ok, 8)
+        inside[edge] = ((g[edge] >= 1) & (g[edge] < shape - 1)).all(axis=1)
+    g = g[inside]
+    flat = g @ strides
     # the nearest vertex: a coarse point's is the coarse pass's (its query reached farther)
     parent = np.repeat(keep, 8)[inside]
     own = np.tile(np.arange(8) == 0, len(keep))[inside]
@@ -602,7 +605,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     within = own & (dc[parent] < reach_m)
     d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
     ask = ~own
-    at = lo + voxel * np.column_stack(np.unravel_index(flat, F.shape))
+    at = lo + voxel * g
     d0[ask], i0[ask] = tree.query(at.take(np.flatnonzero(ask), axis=0), 1, distance_upper_bound=reach_m)
     dist, beside, v = seen_distance(vertices, faces, at, spacing, reach=reach_m,
                                     exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
