@@ -87,27 +87,34 @@ class Views:
             self._uv.append(uv)
         self._nearest = [None] * len(self.heads)
 
-    def pixels(self, i: int, at: np.ndarray):
+    def project(self, at: np.ndarray) -> list:
+        """Per head, its view of positions ``at`` (m, 3): image coordinates (m, 2) float, metres,
+        and depth toward the camera (m,) float; `air` and `beside` take it as ``projected`` (the
+        positions projected once for both)."""
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
+        return [head[0](at) for head in self.heads]
+
+    def pixels(self, i: int, at: np.ndarray, projected=None):
         """Head ``i``'s view of positions ``at`` (m, 3): pixel (m, 2) int, depth toward the camera
-        (m,), and (m,) bool inside its picture."""
+        (m,), and (m,) bool inside its picture (``projected``: head ``i``'s `project` of ``at``)."""
         project, o, shape = self.heads[i][:3]
-        xy, dx = project(np.asarray(at, dtype=np.float64).reshape(-1, 3))
+        xy, dx = project(np.asarray(at, dtype=np.float64).reshape(-1, 3)) if projected is None else projected
         k = np.floor((xy - o) / self.spacing).astype(np.int64)
         return k, dx, ((k >= 0) & (k < np.array(shape))).all(axis=1)
 
-    def air(self, at: np.ndarray) -> np.ndarray:
+    def air(self, at: np.ndarray, projected=None) -> np.ndarray:
         """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface its camera
         saw (its depth toward the camera beyond the nearest seen point of its pixel and the eight
         around it: a pixel finer than the scan's rows holds no point of its own); positive is air
         the camera looked through, -inf where no camera saw a point along that line or the eight
-        around it (unknown; beside the silhouettes: `beside`)."""
+        around it (unknown; beside the silhouettes: `beside`). ``projected``: `project` of ``at``."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), -np.inf)
         for i, head in enumerate(self.heads):
             near = head[4]
-            k, dx, ok = self.pixels(i, at)
+            k, dx, ok = self.pixels(i, at, None if projected is None else projected[i])
             a = np.full(len(at), -np.inf)
-            zk = near[k[ok, 0], k[ok, 1]]
+            zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
             a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
             out = np.maximum(out, a)
         return out
@@ -115,7 +122,7 @@ class Views:
     #: Margin of `beside`'s images around the points, pixels.
     PAD = 4
 
-    def beside(self, at: np.ndarray, close: float = 0.0, step=None) -> np.ndarray:
+    def beside(self, at: np.ndarray, close: float = 0.0, step=None, projected=None) -> np.ndarray:
         """(m,) how far (metres, in the picture) each position ``at`` (m, 3) lies beside the
         silhouettes of every head: per head, the distance from its image to the head's silhouette,
         the least over the heads (0 within a silhouette). A head's silhouette is the image of the
@@ -123,7 +130,7 @@ class Views:
         gaps between neighbouring points filled, its outline kept; at least the head's ``GAP_Q``-th
         percentile gap between neighbouring points), in sub-pixels of ``step``
         metres (default a quarter pixel); positions more than ``PAD`` pixels beside the points
-        are at least that far."""
+        are at least that far. ``projected``: `project` of ``at``."""
         from scipy.ndimage import distance_transform_edt
 
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
@@ -142,15 +149,52 @@ class Views:
                     if GAP_Q > 0 and len(uv) > 2:    # at least the head's own gaps between points
                         from scipy.spatial import cKDTree
                         r = max(r, float(np.percentile(cKDTree(uv).query(uv, 2)[0][:, 1], GAP_Q)))
-                    occ = distance_transform_edt(distance_transform_edt(~occ) * step <= r) * step > r
+                    occ = disc_closing(occ, r, step)
                 self._nearest[i] = ((close, step), o, distance_transform_edt(~occ) * step)
             _, o, dist = self._nearest[i]
-            k = np.floor((head[0](at)[0] - o) / step).astype(np.int64)
+            xy = head[0](at)[0] if projected is None else projected[i][0]
+            k = np.floor((xy - o) / step).astype(np.int64)
             inside = ((k >= 0) & (k < np.array(dist.shape))).all(axis=1)
             d = np.full(len(at), self.PAD * self.spacing)
-            d[inside] = dist[k[inside, 0], k[inside, 1]]
+            d[inside] = dist.take(k[inside, 0] * dist.shape[1] + k[inside, 1])
             out = np.minimum(out, d)
         return out
+
+
+def disc_offsets(r: float, step: float):
+    """The pixel offsets within a disc: (k,) int ``di`` and (k,) int ``dj`` with
+    ``sqrt(di**2 + dj**2) * step <= r``, the test of a Euclidean distance transform in pixels of
+    ``step`` (``r``, ``step`` in metres)."""
+    n = int(np.floor(r / step)) + 1
+    di, dj = np.mgrid[-n:n + 1, -n:n + 1]
+    inside = np.sqrt((di * di + dj * dj).astype(np.float64)) * step <= r
+    return di[inside], dj[inside]
+
+
+def disc_dilation(image: np.ndarray, r: float, step: float) -> np.ndarray:
+    """(a, b) bool: the pixels of ``image`` (a, b) bool within ``r`` of a True pixel (pixels of
+    ``step``; ``r``, ``step`` in metres), as ``distance_transform_edt(~image) * step <= r``: the
+    image shifted by every offset of the disc (`disc_offsets`), or-ed."""
+    out = np.zeros_like(image, dtype=bool)
+    a, b = image.shape
+    for di, dj in zip(*disc_offsets(r, step)):
+        if abs(di) < a and abs(dj) < b:
+            out[max(di, 0):a + min(di, 0), max(dj, 0):b + min(dj, 0)] |= \
+                image[max(-di, 0):a + min(-di, 0), max(-dj, 0):b + min(-dj, 0)]
+    return out
+
+
+def disc_closing(image: np.ndarray, r: float, step: float) -> np.ndarray:
+    """(a, b) bool: the morphological closing of ``image`` (a, b) bool by a disc of radius ``r``
+    (pixels of ``step``; metres), as ``distance_transform_edt(distance_transform_edt(~image) * step
+    <= r) * step > r`` (the erosion, like the distance transform, sees no background beyond the
+    image's border)."""
+    dilated = disc_dilation(image, r, step)
+    if dilated.all():   # no background to erode from
+        from scipy.ndimage import distance_transform_edt
+
+        return distance_transform_edt(dilated) * step > r
+    return ~disc_dilation(~dilated, r, step)
 
 
 def seen_air(points: np.ndarray, view_dir: np.ndarray, head, at: np.ndarray, spacing: float) -> np.ndarray:

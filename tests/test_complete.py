@@ -251,6 +251,42 @@ def test_beside_is_the_distance_to_the_silhouette_with_its_gaps_closed(camera):
     closed = cams.beside(at, close=0.005)
     assert abs(closed[0] - open_[0]) < 0.0015 and closed[1] == 0 and closed[3] == 0
     assert cams.beside(at, close=0.03)[0] == 0
+    projected = cams.project(at)     # projected once for both: the same values
+    assert np.array_equal(cams.beside(at, close=0.005, projected=projected), closed)
+    assert np.array_equal(cams.air(at, projected), cams.air(at))
+
+
+def test_disc_dilation_and_closing_are_the_distance_transforms_thresholds():
+    """`disc_dilation` and `disc_closing` (the silhouettes' closing in `Views.beside`) give the
+    pixels of the Euclidean distance transform's thresholds, on random images, radii (some exactly
+    on a pixel distance) and pixel sizes, and images smaller than the disc."""
+    from scipy.ndimage import distance_transform_edt
+
+    from bodyscan.recon.views import disc_closing, disc_dilation
+
+    rng = np.random.default_rng(3)
+    for _ in range(200):
+        img = rng.random(tuple(rng.integers(1, 40, 2))) < rng.uniform(0.002, 0.9)
+        step = rng.uniform(0.5, 3.0)
+        r = step * rng.integers(0, 6) if rng.random() < 0.3 else rng.uniform(0.0, 12.0)
+        if img.any() and (~img).any():
+            assert np.array_equal(disc_dilation(img, r, step), distance_transform_edt(~img) * step <= r)
+            want = distance_transform_edt(distance_transform_edt(~img) * step <= r) * step > r
+            assert np.array_equal(disc_closing(img, r, step), want)
+
+
+def test_taubin_is_trimesh_filter_taubin():
+    """`taubin` (the closed surface's smoothing) moves the vertices of a noisy sphere as trimesh's
+    filter_taubin with equal weights does."""
+    from bodyscan.recon.surface.closed import taubin
+
+    mesh = trimesh.creation.icosphere(subdivisions=3)
+    noisy = mesh.vertices + np.random.default_rng(4).normal(0, 0.01, mesh.vertices.shape)
+    want = trimesh.Trimesh(noisy, mesh.faces, process=False)
+    trimesh.smoothing.filter_taubin(want, 0.5, 1.0 / 1.9, iterations=6)
+    got = taubin(noisy, mesh.faces, 0.5, 1.0 / 1.9, 6)
+    assert np.allclose(got, want.vertices, rtol=0, atol=1e-12)
+    assert np.array_equal(taubin(noisy, mesh.faces, 0.5, 1.0 / 1.9, 0), noisy)
 
 
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):

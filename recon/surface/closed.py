@@ -58,17 +58,23 @@ def grid_surface(values: np.ndarray, origin: np.ndarray, step: float, labels=Non
                    else slice(0, values.shape[ax]))
     box = tuple(box)
     start = np.array([b.start for b in box])
-    v = np.where(values[box] == 0, 1e-12, values[box]).astype(np.float64, copy=False)
+    # scikit-image marches a float32 copy
+    v = values[box].astype(np.float32)
+    v[values[box] == 0] = np.float32(1e-12)
     vertices, faces, _, _ = marching_cubes(v, 0.0, method="lewiner")
     faces = np.ascontiguousarray(faces[:, ::-1], dtype=np.int64)     # outward (positive inside)
     if labels is None:
         face_label = np.zeros(len(faces), dtype=np.int64)
     else:
-        cube = np.minimum(np.floor(vertices[faces].mean(axis=1)).astype(np.int64), np.array(v.shape) - 2)
-        corners = cube[:, None, :] + np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)])[None]
-        flat = np.ravel_multi_index(tuple(corners.reshape(-1, 3).T), v.shape).reshape(-1, 8)
-        inner = np.take_along_axis(flat, np.argmax(v.ravel()[flat], axis=1)[:, None], axis=1)[:, 0]
-        face_label = labels[box].ravel()[inner]
+        mean = (vertices.take(faces[:, 0], axis=0) + vertices.take(faces[:, 1], axis=0)
+                + vertices.take(faces[:, 2], axis=0)) / np.float32(3)      # the faces' centres, as np.mean
+        cube = np.minimum(np.floor(mean).astype(np.int64), np.array(v.shape) - 2) + start
+        strides = np.array([values.shape[1] * values.shape[2], values.shape[2], 1])
+        corner = np.array([[k & 1, k >> 1 & 1, k >> 2 & 1] for k in range(8)]) @ strides
+        flat = (cube @ strides)[:, None] + corner[None]      # (f, 8) flat indices of the cube's corners
+        at = np.ravel(values).take(flat)
+        inner = flat[np.arange(len(flat)), np.argmax(np.where(at == 0, 1e-12, at), axis=1)]
+        face_label = np.ravel(labels)[inner]
     return origin + step * (vertices + start), faces, face_label
 
 
@@ -203,7 +209,9 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     n_t, n_h = R.shape
     S, Rn = field_tables(R, cell) if tables is None else tables
     rho = np.hypot(local[:, 0], local[:, 1])
-    tf = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2 * np.pi) / (2 * np.pi) * n_t - 0.5
+    tf = np.arctan2(local[:, 1], local[:, 0])
+    tf += (tf < 0) * (2 * np.pi)       # np.mod(., 2 pi) of the angle in [-pi, pi]
+    tf = tf / (2 * np.pi) * n_t - 0.5
     hf = np.clip((local[:, 2] - h0) / cell - 0.5, -1.0, n_h)
     t0 = np.floor(tf).astype(np.int64)
     a = tf - t0
@@ -222,16 +230,38 @@ def field_value(R: np.ndarray, h0: float, cell: float, local: np.ndarray, h1=Non
     return np.minimum(bil(Rn) - rho, s)
 
 
+#: Grid points per call of `field_value` in `_solid_on_grid`, and of the cameras' cut in `closed_surface`.
+FIELD_CHUNK = 16384
+
+
 def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     """`field_value` of one solid on the grid box ``i0:i1`` (origin ``lo``, step ``voxel``):
     computed on every second grid point, then on every grid point only near the solid's surface
-    (within 4 steps; elsewhere only its sign matters, and the coarse value has it)."""
+    (within 4 steps; elsewhere only its sign matters, and the coarse value has it). Grid points
+    farther from the axis than their rows' largest radius plus 4 steps (coarse) or one step (fine)
+    are -inf: their value is at most -4 steps (-1 step), below the grid's initial -``voxel``."""
     from scipy.ndimage import binary_dilation
 
     D = tuple(int(d) for d in i1 - i0)
     tables = field_tables(R, cell)
+    n_h = R.shape[1]
+    # per row of cells, a bound of the bilinear radius (field_value's rows r0, r1 of a point)
+    top = np.max(tables[1], axis=0) * (1 + 1e-9) + 1e-12
+
+    def value(g, margin):
+        local = shape.local(lo + voxel * g)
+        hc = np.clip((local[:, 2] - h0) / cell - 0.5, 0, n_h - 1)
+        r0 = np.minimum(np.floor(hc).astype(np.int64), max(n_h - 2, 0))
+        m = np.maximum(top[r0], top[np.minimum(r0 + 1, n_h - 1)]) + margin
+        ask = np.flatnonzero(local[:, 0] ** 2 + local[:, 1] ** 2 <= m * m * (1 + 1e-9))
+        out = np.full(len(g), -np.inf)
+        for s in range(0, len(ask), FIELD_CHUNK):   # in chunks: field_value's temporaries stay in cache
+            part = ask[s:s + FIELD_CHUNK]
+            out[part] = field_value(R, h0, cell, local.take(part, axis=0), h1, tables)
+        return out
+
     gc = np.indices(tuple((d + 1) // 2 for d in D)).reshape(3, -1).T * 2 + i0
-    vc = field_value(R, h0, cell, shape.local(lo + voxel * gc), h1, tables).reshape(tuple((d + 1) // 2 for d in D))
+    vc = value(gc, 4 * voxel).reshape(tuple((d + 1) // 2 for d in D))
     near = binary_dilation(np.abs(vc) < 4 * voxel)
     up = (lambda a: a.repeat(2, 0).repeat(2, 1).repeat(2, 2)[:D[0], :D[1], :D[2]])
     out = np.ascontiguousarray(up(vc))
@@ -239,7 +269,7 @@ def _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1):
     todo[::2, ::2, ::2] = False      # the coarse points themselves have their value
     fine = np.flatnonzero(todo)
     g = np.column_stack(np.unravel_index(fine, D)) + i0
-    out.ravel()[fine] = field_value(R, h0, cell, shape.local(lo + voxel * g), h1, tables)
+    out.ravel()[fine] = value(g, voxel)
     return out
 
 
@@ -264,13 +294,14 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
     """
     from scipy.spatial import cKDTree
 
+    vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
-    tri = vertices[faces]
+    tri = vertices.take(faces, axis=0)
     fn = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])     # area-weighted
-    vn = np.zeros_like(vertices)
-    for c in range(3):
-        np.add.at(vn, faces[:, c], fn)
-    used = np.unique(faces)
+    # the faces' normals summed per vertex, corner by corner in the faces' order (np.add.at's sums)
+    corner = faces.T.ravel()
+    vn = np.column_stack([np.bincount(corner, np.tile(fn[:, j], 3), len(vertices)) for j in range(3)])
+    used = np.flatnonzero(np.bincount(corner, minlength=len(vertices)))     # np.unique(faces)
     vn = vn[used] / np.maximum(np.linalg.norm(vn[used], axis=1, keepdims=True), 1e-30)
     vp = vertices[used]
     return used, np.column_stack([vp, vn]), cKDTree(vp)
@@ -319,24 +350,30 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
         as ``index``'s tree answers a query bounded by ``reach`` (queried here without it).
     """
     used, vpn, tree = seen_index(vertices, faces) if index is None else index
-    vp, vn = vpn[:, :3], vpn[:, 3:]
     k = min(k, len(used))
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
     d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
-    along0 = np.einsum("mj,mj->m", at[near] - vp[i0], vn[i0])
+    pn0 = vpn.take(i0, axis=0)     # (take: a faster gather of rows than indexing)
+    along0 = np.einsum("mj,mj->m", at.take(near, axis=0) - pn0[:, :3], pn0[:, 3:])
     dist[near] = -along0
     beside[near] = np.sqrt(np.maximum(d0 ** 2 - along0 ** 2, 0))
     vertex[near] = used[i0]
     fine = near[(np.abs(along0) < exact) & (beside[near] < beside_max)]   # the weighted mean near the zero level only
-    if len(fine) and k > 1:
-        d, i = tree.query(at[fine], k)
-        pn = vpn[i]     # (m, k, 6): one gather of the positions and normals
-        along = np.einsum("mkj,mkj->mk", at[fine, None, :] - pn[..., :3], pn[..., 3:])
+    for s in range(0, len(fine) if k > 1 else 0, CHUNK):   # in chunks: the (m, k, 6) gathers stay in cache
+        f = fine[s:s + CHUNK]
+        a = at.take(f, axis=0)
+        d, i = tree.query(a, k)
+        pn = vpn.take(i, axis=0)     # (m, k, 6): one gather of the positions and normals
+        along = np.einsum("mkj,mkj->mk", a[:, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
-        dist[fine] = -(w * along).sum(axis=1) / w.sum(axis=1)
+        dist[f] = -(w * along).sum(axis=1) / w.sum(axis=1)
     return dist, beside, vertex
+
+
+#: Query positions per chunk of `seen_distance`'s weighted mean.
+CHUNK = 4096
 
 
 #: Spacings beside the open mesh (past a hole's rim): up to BAND_BESIDE the seen surface's band
@@ -442,33 +479,67 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         val = _solid_on_grid(R, h0, h1, cell, shape, lo, voxel, i0, i1)
         box = tuple(slice(a_, b_) for a_, b_ in zip(i0, i1))
         better = val > F[box]
-        F[box] = np.where(better, val, F[box])
-        lab[box] = np.where(better, j, lab[box])
+        np.copyto(F[box], val, where=better)
+        lab[box][better] = j
     # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
     if seen is not None and band > 0:
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
-        g = np.argwhere(F > -voxel)
-        at = lo + voxel * g
+        flat = np.flatnonzero(F > -voxel)
         cams = Views(points, view[0], view[1], spacing)
-        cut = np.full(len(g), np.inf)
-        if carve > 0:
-            air = cams.air(at)
-            cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
-        if background > 0:    # beside every head's silhouette
-            cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3))
-        F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
-    F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
+        for s in range(0, len(flat), FIELD_CHUNK):   # in chunks: the temporaries stay in cache
+            part = flat[s:s + FIELD_CHUNK]
+            at = lo + voxel * np.column_stack(np.unravel_index(part, F.shape))
+            projected = cams.project(at)     # once for the carve and the background
+            cut = np.full(len(part), np.inf)
+            if carve > 0:
+                air = cams.air(at, projected)
+                cut = np.where(np.isfinite(air), carve * spacing - air, np.inf)
+            if background > 0:    # beside every head's silhouette
+                cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3, projected))
+            F.reshape(-1)[part] = np.minimum(F.reshape(-1).take(part), cut)
+    floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
+    low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
+    np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
-        import trimesh
-
-        mesh = trimesh.Trimesh(vertices, faces, process=False)
         # lambda, mu: Taubin's pass band k = 1 / lambda + 1 / mu = 0.1 (no shrinking below it)
-        trimesh.smoothing.filter_taubin(mesh, 0.5, 1.0 / (2.0 - 0.1), iterations=2 * int(smooth))
-        vertices = np.asarray(mesh.vertices)
+        vertices = taubin(vertices, faces, 0.5, 1.0 / (2.0 - 0.1), 2 * int(smooth))
     return vertices, faces, face_label.astype(np.int8)
+
+
+def taubin(vertices: np.ndarray, faces: np.ndarray, lamb: float, nu: float, iterations: int) -> np.ndarray:
+    """Taubin's smoothing, as ``trimesh.smoothing.filter_taubin`` (equal weights): each step moves
+    every vertex toward the mean of its neighbours along the faces' edges (``d``: that mean less the
+    vertex), by ``lamb * d`` on even steps and by ``-nu * d`` on odd ones.
+
+    Parameters
+    ----------
+    vertices : (v, 3) float
+    faces : (f, 3) int
+        A closed mesh (every vertex's neighbours are the far ends of its faces' edges leaving it).
+    lamb, nu : float
+    iterations : int
+
+    Returns
+    -------
+    (v, 3) float
+        The smoothed vertices (a copy).
+    """
+    from scipy.sparse import csr_matrix
+
+    edges = np.asarray(faces, dtype=np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
+    deg = np.maximum(np.bincount(edges[:, 0], minlength=len(vertices)), 1)
+    mean = csr_matrix((1.0 / deg[edges[:, 0]], (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2)
+    out = np.array(vertices, dtype=np.float64)
+    for step in range(int(iterations)):
+        d = mean @ out - out
+        if step % 2 == 0:
+            out += lamb * d
+        else:
+            out -= nu * d
+    return out
 
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
@@ -485,6 +556,8 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     faces = np.asarray(faces, dtype=np.int64)
     if len(faces) == 0:
         return
+    if not (F.flags.c_contiguous and lab.flags.c_contiguous):
+        raise ValueError("_seen_band writes F and lab in place: they must be C-contiguous")
     index = seen_index(vertices, faces)
     used = index[0]
     shape = np.array(F.shape)
@@ -503,31 +576,45 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     margin = np.sqrt(3) * voxel
     # the offsets along (positive inside; NaN out of reach) and beside the nearest vertex's normal
     tree = index[2]
-    dc, ic = tree.query(lo + voxel * gc, 1, distance_upper_bound=reach_m + 2 * margin)
-    along, beside, _ = seen_distance(vertices, faces, lo + voxel * gc, spacing, k=1, reach=reach_m + 2 * margin,
-                                     index=index, nearest=(dc, ic))
+    at = lo + voxel * gc
+    # a coarse point is kept only within this of a vertex (its offsets along and beside within the
+    # limits below): the query need not look farther
     slack = SLACK * margin
+    kept_max = np.hypot(band * spacing + slack, BAND_BLEND * spacing + slack) * (1 + 1e-9)
+    dc, ic = tree.query(at, 1, distance_upper_bound=min(reach_m + 2 * margin, kept_max))
+    along, beside, _ = seen_distance(vertices, faces, at, spacing, k=1, reach=reach_m + 2 * margin,
+                                     index=index, nearest=(dc, ic))
     keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
                           & (beside < BAND_BLEND * spacing + slack))
-    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])     # (0, 0, 0) first
-    g = (gc[keep][:, None, :] + block[None]).reshape(-1, 3)
-    inside = ((g >= 1) & (g < shape - 1)).all(axis=1)
+    # the 2 x 2 x 2 block of each kept coarse point, (0, 0, 0) first, and their flat grid indices
+    strides = np.array([shape[1] * shape[2], shape[2], 1])
+    block = np.array([[a, b, c] for a in (0, 1) for b in (0, 1) for c in (0, 1)])
+    gk = gc[keep]
+    g = (gk[:, None, :] + block[None]).reshape(-1, 3)
+    ok = ((gk >= 1) & (gk < shape - 2)).all(axis=1)    # every block point inside the grid's border
+    inside = np.repeat(ok, 8)
+    if not ok.all():
+        edge = np.repeat(~ok, 8)
+        inside[edge] = ((g[edge] >= 1) & (g[edge] < shape - 1)).all(axis=1)
     g = g[inside]
+    flat = g @ strides
     # the nearest vertex: a coarse point's is the coarse pass's (its query reached farther)
     parent = np.repeat(keep, 8)[inside]
-    own = (np.arange(len(inside)) % 8 == 0)[inside]
-    d0, i0 = np.full(len(g), np.inf), np.full(len(g), len(index[0]), dtype=np.int64)
+    own = np.tile(np.arange(8) == 0, len(keep))[inside]
+    d0, i0 = np.full(len(flat), np.inf), np.full(len(flat), len(index[0]), dtype=np.int64)
     within = own & (dc[parent] < reach_m)
     d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
     ask = ~own
-    d0[ask], i0[ask] = tree.query(lo + voxel * g[ask], 1, distance_upper_bound=reach_m)
-    dist, beside, v = seen_distance(vertices, faces, lo + voxel * g, spacing, reach=reach_m,
+    at = lo + voxel * g
+    d0[ask], i0[ask] = tree.query(at.take(np.flatnonzero(ask), axis=0), 1, distance_upper_bound=reach_m)
+    dist, beside, v = seen_distance(vertices, faces, at, spacing, reach=reach_m,
                                     exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
                                     nearest=(d0, i0))
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
-    g, w = g[over], w[over]
-    F[tuple(g.T)] = w * dist[over] + (1 - w) * F[tuple(g.T)]
+    flat, w = flat[over], w[over]
+    Ff = F.reshape(-1)
+    Ff[flat] = w * dist[over] + (1 - w) * Ff.take(flat)
     vsec = np.zeros(len(vertices), dtype=lab.dtype)
     vsec[faces.ravel()] = np.repeat(np.asarray(face_section, dtype=lab.dtype), 3)
-    lab[tuple(g.T)] = vsec[v[over]]
+    lab.reshape(-1)[flat] = vsec[v[over]]
