@@ -414,9 +414,12 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     -------
     vertices : (v, 3) float
     faces : (f, 3) int
-        Outward winding; every edge in exactly two faces.
+        Outward winding; every edge in exactly two faces; no component inside another (the
+        union's cavities are filled).
     face_section : (f,) int8
     """
+    from scipy.ndimage import binary_fill_holes
+
     cell = max(cell * spacing, voxel)
     parts = []
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -472,6 +475,10 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         F[tuple(g.T)] = np.minimum(F[tuple(g.T)], cut)
     F = np.minimum(F, (lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min())[None, None, :])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
+    # no cavity within: grid points outside that no path of outside points joins to the border
+    # (a piece of the open mesh inside a solid, seams of solids) are inside
+    inside = F >= 0
+    F[binary_fill_holes(inside) & ~inside] = voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
         import trimesh
