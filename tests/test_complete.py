@@ -424,3 +424,35 @@ def test_the_closed_surface_has_no_cavity_inside_the_body():
     c = v[f].mean(axis=1)
     mid = (c[:, 2] > 0.05) & (c[:, 2] < 0.35)
     assert np.abs(truth.coords(c[mid])[0]).max() < 0.001
+
+
+def test_a_foot_seen_from_above_rests_its_sole_on_the_floor():
+    """A foot (an extremity, fitted column of semi-axes 3 cm down and 4.5 cm across) whose instep
+    rises 1 cm over the column's axis and whose sole, 3 cm under it, no camera sees (the points
+    stop 8 mm over it): the closed surface's sole lies flat on the floor (the lowest point), within
+    0.1 mm of it under the foot's middle. A foot is filled to its column, not as thin as its
+    thinnest seen side like a hand (as a hand, its sole stands 8.6-11.3 mm over the floor)."""
+    from scipy.spatial import cKDTree
+
+    from bodyscan.recon.surface.closed import closed_surface
+
+    x, y = np.meshgrid(np.arange(0.0, 0.2, 0.004), np.linspace(-0.045, 0.045, 40), indexing="ij")
+    x, y = x.ravel(), y.ravel()
+    s = np.sqrt(np.clip(1 - (y / 0.045) ** 2, 0, 1))
+    top = np.column_stack([x, y, 0.03 + 0.01 * s])
+    low = np.column_stack([x, y, 0.03 - 0.03 * s])
+    P = np.concatenate([top, low[low[:, 2] > 0.008]])
+    spacing = float(np.median(cKDTree(P).query(P, 2)[0][:, 1]))
+    floor = P[:, 2].min()
+    for name in ("foot_l", "hand_l"):
+        shape = SectionShape(name, np.array([0.0, 0, 0.03]), np.array([0.2, 0, 0.03]), np.array([0.03, 0.045]),
+                             np.array([0.0, 0, 1.0]))
+        job = (LOWER_LEG, np.arange(len(P)), shape, {}, np.arange(len(P)))
+        v, f, _ = closed_surface(P, [job], spacing, band=0.0)
+        assert is_watertight(f)
+        c = v[f].mean(axis=1)
+        sole = (c[:, 0] > 0.06) & (c[:, 0] < 0.14) & (np.abs(c[:, 1]) < 0.008) & (c[:, 2] < 0.03)
+        if name == "foot_l":
+            assert np.abs(c[sole, 2] - floor).max() < 0.0001
+        else:
+            assert (c[sole, 2] - floor).min() > 0.008

@@ -429,9 +429,11 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         if len(idx) < 10:
             continue
         local = shape.local(points[idx])
-        # a far part's chart is its points' own ellipse: its fill stays within it
+        # a far part's chart is its points' own ellipse: its fill stays within it; its unseen side
+        # no thicker than its thinnest seen side (a hand seen on its back), but a foot's: its sole,
+        # on the floor, takes its fitted column (the floor's cut flattens it)
         part = len(job) > 3
-        thin = (np.inf, -np.inf) if part else (-np.inf, np.inf)
+        thin = (np.inf, -np.inf) if part and not shape.name.startswith("foot") else (-np.inf, np.inf)
         wide = (np.inf, -np.inf) if part else (0.0, _own_end(points, solids, j, shape))
         R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin,
                              wide=wide)
