@@ -101,8 +101,8 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         Largest fill beyond the model radius, metres.
     thin : (2,) float
         Rows outside this range of h (metres) fill no cell beyond the smallest seen radius of the
-        row: parts of unknown shape (a far part: a hand, a foot) have their unseen side taken as
-        thin as their thinnest seen side.
+        row: parts of unknown shape (a far part, a hand) have their unseen side taken as thin as
+        their thinnest seen side.
     wide : (2,) float
         Rows within this range of h (metres) also fill their gaps wider than half the turn, no
         thicker than the row's thinnest seen radius: a closed limb's side that the cameras saw
