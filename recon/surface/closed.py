@@ -418,7 +418,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         union's cavities are filled).
     face_section : (f,) int8
     """
-    from scipy.ndimage import binary_fill_holes
+    from scipy.ndimage import label
 
     cell = max(cell * spacing, voxel)
     parts = []
@@ -479,8 +479,8 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
     # no cavity within: grid points outside that no path of outside points joins to the border
     # (a piece of the open mesh inside a solid, seams of solids) are inside
-    inside = F >= 0
-    F[binary_fill_holes(inside) & ~inside] = voxel
+    outer, _ = label(F < 0)
+    F[(outer != outer[0, 0, 0]) & (outer > 0)] = voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
         import trimesh
