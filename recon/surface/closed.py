@@ -4,9 +4,9 @@
 its chart's cylindrical coordinates, give a radial height field r(theta, h) whose holes (what the
 scanner did not see) are filled by a discrete Laplace equation within the model's envelope
 (`radial_field`); each field bounds a solid, the solids are united (a maximum of their signed
-values on a grid) and the union's surface is extracted by marching cubes: one closed,
-consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
-holds another section's points, so no surface spans the air between two sections.
+values on a grid) and the union's surface, its cavities filled, is extracted by marching cubes:
+one closed, consistently wound 2-manifold. Sections join where their solids overlap at the
+seams; no solid holds another section's points, so no surface spans the air between two sections.
 
 The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
 same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
@@ -492,10 +492,27 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     return vertices, faces, face_label.astype(np.int8)
 
 
-def _own_end(points, solids, j, shape) -> float:
-    """Metres along ``shape``'s axis (section ``j``'s chart) where its own limb ends: its length, or
-    where the points of a part that continues it begin (a hand past a forearm, a foot past a lower
-    leg: the section's chart holds the part's near points, which are not round like a limb)."""
+def _own_end(points: np.ndarray, solids, j: int, shape) -> float:
+    """Where section ``j``'s own limb ends along its axis: its length, or where the points of a part
+    that continues it begin (a hand past a forearm, a foot past a lower leg: the section's chart
+    holds the part's near points, which are not round like a limb).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    solids : list
+        As `closed_surface`'s; the parts (5 items) of section ``j`` whose own points lie mostly
+        past the middle of ``shape`` count.
+    j : int
+        The section.
+    shape : SectionShape
+        Its chart.
+
+    Returns
+    -------
+    float
+        Metres along the axis from ``shape.start``.
+    """
     end = shape.length
     for job in solids:
         if len(job) > 4 and job[0] == j and len(job[4]):
