@@ -4,9 +4,9 @@
 its chart's cylindrical coordinates, give a radial height field r(theta, h) whose holes (what the
 scanner did not see) are filled by a discrete Laplace equation within the model's envelope
 (`radial_field`); each field bounds a solid, the solids are united (a maximum of their signed
-values on a grid) and the union's surface is extracted by marching cubes: one closed,
-consistently wound 2-manifold. Sections join where their solids overlap at the seams; no solid
-holds another section's points, so no surface spans the air between two sections.
+values on a grid) and the union's surface, its cavities filled, is extracted by marching cubes:
+one closed, consistently wound 2-manifold. Sections join where their solids overlap at the
+seams; no solid holds another section's points, so no surface spans the air between two sections.
 
 The solids only close what the scanner did not see: near the open mesh (`proposed`'s surface, the
 same data), the grid takes the signed distance to it (`seen_distance`), so the seen surface comes
@@ -83,12 +83,13 @@ GAP_TURN = 0.5
 
 
 def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: float = np.inf,
-                 thin=(-np.inf, np.inf)):
+                 thin=(-np.inf, np.inf), wide=(np.inf, -np.inf)):
     """A section's surface as a radial height field ``rho = R(theta, h)`` on a grid, its holes filled.
 
     The points' distances from the axis are averaged per (theta, h) cell. Cells the points leave
     empty are filled where they are holes of the seen surface: between seen cells of the same
-    theta column (the column's h extent), or in a row's gap narrower than half the turn. The fill
+    theta column (the column's h extent), or in a row's gap narrower than half the turn (with
+    ``wide``, in every gap of a row that holds a seen cell). The fill
     interpolates the seen radii harmonically (the smoothest surface through the hole's rim: a
     discrete Laplace equation over the holes, periodic in theta), held within ``envelope`` of the
     model's radius.
@@ -106,8 +107,14 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         Largest fill beyond the model radius, metres.
     thin : (2,) float
         Rows outside this range of h (metres) fill no cell beyond the smallest seen radius of the
-        row: parts of unknown shape (a far part: a hand, a foot) have their unseen side taken as
-        thin as their thinnest seen side.
+        row: parts of unknown shape (a far part, a hand) have their unseen side taken as thin as
+        their thinnest seen side.
+    wide : (2,) float
+        Rows within this range of h (metres) also fill their gaps wider than half the turn, no
+        thicker than the row's thinnest seen radius: a closed limb's side that the cameras saw
+        only at its rims (a seated body's thighs from below), which the narrow gaps' rule leaves
+        as notches and folds in the solid. A section's own length; not past its ends, where its
+        chart holds what continues it (a hand, a foot).
 
     Returns
     -------
@@ -142,6 +149,9 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
     left = np.maximum.accumulate(np.where(tiled, idx, -10 ** 9), axis=0)[n_t:2 * n_t]
     right = np.minimum.accumulate(np.where(tiled, idx, 10 ** 9)[::-1], axis=0)[::-1][n_t:2 * n_t]
     fill |= (right - left) <= n_t * GAP_TURN
+    narrow = fill.copy()
+    hr = h0 + (rows + 0.5) * cell
+    fill |= ((right - left) <= n_t) & ((hr >= wide[0]) & (hr <= wide[1]))[None, :]
     fill &= ~seen
     valid = seen | fill
     if fill.any():
@@ -174,7 +184,7 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         A = A + coo_matrix((deg + eps, (np.arange(len(unk)), np.arange(len(unk))))).tocsr()
         x = spsolve(A.tocsc(), rhs + eps * model[t_u])
         hc = h0 + (h_u + 0.5) * cell
-        lean = (hc < thin[0]) | (hc > thin[1])
+        lean = (hc < thin[0]) | (hc > thin[1]) | ~narrow[t_u, h_u]
         if lean.any():   # no more than the row's thinnest seen radius (a flat hand seen on its back)
             low = np.min(np.where(seen, R, np.inf), axis=0)[h_u]
             x = np.where(lean & np.isfinite(low), np.minimum(x, low), x)
@@ -441,9 +451,12 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     -------
     vertices : (v, 3) float
     faces : (f, 3) int
-        Outward winding; every edge in exactly two faces.
+        Outward winding; every edge in exactly two faces; no component inside another (the
+        union's cavities are filled).
     face_section : (f,) int8
     """
+    from scipy.ndimage import label
+
     cell = max(cell * spacing, voxel)
     parts = []
     lo, hi = np.full(3, np.inf), np.full(3, -np.inf)
@@ -453,10 +466,14 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         if len(idx) < 10:
             continue
         local = shape.local(points[idx])
-        # a far part's chart is its points' own ellipse: its fill stays within it
+        # a far part's chart is its points' own ellipse: its fill stays within it; its unseen side
+        # no thicker than its thinnest seen side (a hand seen on its back), but a foot's: its sole,
+        # on the floor, takes its fitted column (the floor's cut flattens it)
         part = len(job) > 3
-        thin = (np.inf, -np.inf) if part else (-np.inf, np.inf)
-        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin)
+        thin = (np.inf, -np.inf) if part and not shape.name.startswith("foot") else (-np.inf, np.inf)
+        wide = (np.inf, -np.inf) if part else (0.0, _own_end(points, solids, j, shape))
+        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin,
+                             wide=wide)
         h1 = float(local[:, 2].max())
         reach = float(np.nanmax(R)) + cell
         corners = np.array([[x, y, z] for x in (-reach, reach) for y in (-reach, reach)
@@ -502,6 +519,10 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
     np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
     F[[0, -1]] = F[:, [0, -1]] = F[:, :, [0, -1]] = -voxel
+    # no cavity within: grid points outside that no path of outside points joins to the border
+    # (a piece of the open mesh inside a solid, seams of solids) are inside
+    outer, _ = label(F < 0)
+    F[(outer != outer[0, 0, 0]) & (outer > 0)] = voxel
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
         # lambda, mu: Taubin's pass band k = 1 / lambda + 1 / mu = 0.1 (no shrinking below it)
@@ -540,6 +561,36 @@ def taubin(vertices: np.ndarray, faces: np.ndarray, lamb: float, nu: float, iter
         else:
             out -= nu * d
     return out
+
+
+def _own_end(points: np.ndarray, solids, j: int, shape) -> float:
+    """Where section ``j``'s own limb ends along its axis: its length, or where the points of a part
+    that continues it begin (a hand past a forearm, a foot past a lower leg: the section's chart
+    holds the part's near points, which are not round like a limb).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+    solids : list
+        As `closed_surface`'s; the parts (5 items) of section ``j`` whose own points lie mostly
+        past the middle of ``shape`` count.
+    j : int
+        The section.
+    shape : SectionShape
+        Its chart.
+
+    Returns
+    -------
+    float
+        Metres along the axis from ``shape.start``.
+    """
+    end = shape.length
+    for job in solids:
+        if len(job) > 4 and job[0] == j and len(job[4]):
+            h = shape.local(points[job[4]])[:, 2]
+            if np.median(h) > 0.5 * shape.length:
+                end = min(end, float(h.min()))
+    return end
 
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
