@@ -83,13 +83,12 @@ GAP_TURN = 0.5
 
 
 def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: float = np.inf,
-                 thin=(-np.inf, np.inf), wide=(np.inf, -np.inf)):
+                 thin=(-np.inf, np.inf)):
     """A section's surface as a radial height field ``rho = R(theta, h)`` on a grid, its holes filled.
 
     The points' distances from the axis are averaged per (theta, h) cell. Cells the points leave
     empty are filled where they are holes of the seen surface: between seen cells of the same
-    theta column (the column's h extent), or in a row's gap narrower than half the turn (with
-    ``wide``, in every gap of a row that holds a seen cell). The fill
+    theta column (the column's h extent), or in a row's gap narrower than half the turn. The fill
     interpolates the seen radii harmonically (the smoothest surface through the hole's rim: a
     discrete Laplace equation over the holes, periodic in theta), held within ``envelope`` of the
     model's radius.
@@ -109,12 +108,6 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         Rows outside this range of h (metres) fill no cell beyond the smallest seen radius of the
         row: parts of unknown shape (a far part, a hand) have their unseen side taken as thin as
         their thinnest seen side.
-    wide : (2,) float
-        Rows within this range of h (metres) also fill their gaps wider than half the turn, no
-        thicker than the row's thinnest seen radius: a closed limb's side that the cameras saw
-        only at its rims (a seated body's thighs from below), which the narrow gaps' rule leaves
-        as notches and folds in the solid. A section's own length; not past its ends, where its
-        chart holds what continues it (a hand, a foot).
 
     Returns
     -------
@@ -149,9 +142,6 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
     left = np.maximum.accumulate(np.where(tiled, idx, -10 ** 9), axis=0)[n_t:2 * n_t]
     right = np.minimum.accumulate(np.where(tiled, idx, 10 ** 9)[::-1], axis=0)[::-1][n_t:2 * n_t]
     fill |= (right - left) <= n_t * GAP_TURN
-    narrow = fill.copy()
-    hr = h0 + (rows + 0.5) * cell
-    fill |= ((right - left) <= n_t) & ((hr >= wide[0]) & (hr <= wide[1]))[None, :]
     fill &= ~seen
     valid = seen | fill
     if fill.any():
@@ -184,7 +174,7 @@ def radial_field(local: np.ndarray, cell: float, model_radius=None, envelope: fl
         A = A + coo_matrix((deg + eps, (np.arange(len(unk)), np.arange(len(unk))))).tocsr()
         x = spsolve(A.tocsc(), rhs + eps * model[t_u])
         hc = h0 + (h_u + 0.5) * cell
-        lean = (hc < thin[0]) | (hc > thin[1]) | ~narrow[t_u, h_u]
+        lean = (hc < thin[0]) | (hc > thin[1])
         if lean.any():   # no more than the row's thinnest seen radius (a flat hand seen on its back)
             low = np.min(np.where(seen, R, np.inf), axis=0)[h_u]
             x = np.where(lean & np.isfinite(low), np.minimum(x, low), x)
@@ -471,9 +461,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         # on the floor, takes its fitted column (the floor's cut flattens it)
         part = len(job) > 3
         thin = (np.inf, -np.inf) if part and not shape.name.startswith("foot") else (-np.inf, np.inf)
-        wide = (np.inf, -np.inf) if part else (0.0, _own_end(points, solids, j, shape))
-        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin,
-                             wide=wide)
+        R, h0 = radial_field(local, cell, shape.radius_at, 0.0 if part else envelope * shape.width, thin)
         h1 = float(local[:, 2].max())
         reach = float(np.nanmax(R)) + cell
         corners = np.array([[x, y, z] for x in (-reach, reach) for y in (-reach, reach)
@@ -561,36 +549,6 @@ def taubin(vertices: np.ndarray, faces: np.ndarray, lamb: float, nu: float, iter
         else:
             out -= nu * d
     return out
-
-
-def _own_end(points: np.ndarray, solids, j: int, shape) -> float:
-    """Where section ``j``'s own limb ends along its axis: its length, or where the points of a part
-    that continues it begin (a hand past a forearm, a foot past a lower leg: the section's chart
-    holds the part's near points, which are not round like a limb).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    solids : list
-        As `closed_surface`'s; the parts (5 items) of section ``j`` whose own points lie mostly
-        past the middle of ``shape`` count.
-    j : int
-        The section.
-    shape : SectionShape
-        Its chart.
-
-    Returns
-    -------
-    float
-        Metres along the axis from ``shape.start``.
-    """
-    end = shape.length
-    for job in solids:
-        if len(job) > 4 and job[0] == j and len(job[4]):
-            h = shape.local(points[job[4]])[:, 2]
-            if np.median(h) > 0.5 * shape.length:
-                end = min(end, float(h.min()))
-    return end
 
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
