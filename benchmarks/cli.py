@@ -66,7 +66,22 @@ def _one_line_warning(command: str):
     return show
 
 
+#: Thread-count variables of the BLAS libraries numpy may be built with.
+BLAS_THREADS = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+def one_blas_thread() -> None:
+    """Run numpy's BLAS on one thread in this process and the workers it starts, unless the user
+    set one of `BLAS_THREADS`. The stages' matrix products are small ((n, 3) by (3, 3)): more
+    threads gain no wall time and on a busy machine spin, inflating the CPU seconds the benchmark
+    reports. Takes effect only before numpy is first imported (as by ``bodyscan`` and
+    ``python -m bodyscan.benchmarks.perf_recon``)."""
+    if not any(v in os.environ for v in BLAS_THREADS) and "numpy" not in sys.modules:
+        os.environ["OPENBLAS_NUM_THREADS"] = "1"
+
+
 def main(argv: list[str] | None = None) -> int:
+    one_blas_thread()
     argv, debug_flag = _split_debug(list(sys.argv[1:] if argv is None else argv))
     parser = build_parser()
     args = parser.parse_args(argv)

@@ -136,6 +136,9 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: st
 
 
 def main(argv=None) -> int:
+    from bodyscan.benchmarks.cli import one_blas_thread
+
+    one_blas_thread()
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--body", default="standing", help="library body (default: standing)")
     ap.add_argument("--dense-resolution", type=float, default=0.0014,

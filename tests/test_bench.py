@@ -241,3 +241,20 @@ def test_pictures_of_a_body_file_are_named_by_the_file_not_its_path(tmp_path):
     done = _pictures({"proposed": mesh}, (str(tmp_path / "bodies" / "walker.npz"), "paper", 1), tmp_path, None)
     assert done == [("proposed", ["img/proposed_walker.png"])]
     assert (tmp_path / "img" / "proposed_walker.png").is_file()
+
+
+@pytest.mark.parametrize("user", [None, "2"])
+def test_the_command_runs_blas_on_one_thread_unless_the_user_chose(user):
+    import os
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS",
+                                                            "MKL_NUM_THREADS")}
+    if user:
+        env["OPENBLAS_NUM_THREADS"] = user
+    code = ("import os, sys; from bodyscan.benchmarks.cli import main\n"
+            "try:\n    main(['fit', '--help'])\nexcept SystemExit:\n    pass\n"
+            "print(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
+    assert out.stdout.split()[-2:] == [user or "1", "True"]   # set before numpy was imported
