@@ -795,7 +795,8 @@ class FitParams:
                                            # over `recon.posture.match.CROWN_CROTCH` statures) are not whole legs (cut from the
                                            # scan): the trunk sizes the body and the lower legs are listed
                                            # (`recon.posture.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
-                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
+                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73;
+                                           # not applied when the scan shows feet (`recon.posture.fit.feet_forward`)
                                            # (0 = off; chosen)
     match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
         metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points", "unit": "", "range": (0, 1)})

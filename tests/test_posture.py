@@ -958,6 +958,25 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
     assert row["outcome"] == "pass", row
 
 
+def test_legs_ending_in_feet_are_never_judged_cut():
+    """Both leg chains measuring under `match_leg_trunk_min` of the trunk are legs cut from the scan,
+    unless the scan shows feet (`recon.posture.fit.feet_forward`): with the limit raised to 1.5, where
+    every whole leg measures short (as a short heavy body matched at too large a first size does),
+    standing keeps both lower legs; cut from the scan (no feet), they are listed."""
+    from bodyscan.benchmarks.fit_table import run_one
+
+    if "standing" not in _library():
+        pytest.skip("library postures missing")
+    from bodyscan import poses
+
+    body = poses.load_body("standing")
+    params = FitParams(match_leg_trunk_min=1.5)
+    row = run_one(body, "k1", 0.02, params)
+    assert row["outcome"] == "pass" and row["unfitted"] == (), row
+    row = run_one(body, "k1_without-lower_leg_l+lower_leg_r", 0.02, params)
+    assert {"lower_leg_l", "lower_leg_r"} <= set(row.get("unfitted", ())), row
+
+
 def _crotch_scene(crotch_z=0.80, spacing=0.01):
     """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
     and a fit whose thighs start 15 cm above the crotch."""

@@ -109,7 +109,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    told from whole ones by the trunk, crown to the crotch seen in the points, `recon.posture.match.CROWN_CROTCH`
    = 0.52 statures (ANSUR II): when both leg chains measure under `match_leg_trunk_min` of it, the
    trunk sizes the body and the lower legs are listed (a walker without its lower legs had been
-   judged 1.22 m tall, true 1.71; now 1.68).
+   judged 1.22 m tall, true 1.71; now 1.68), unless the scan shows feet (`feet_forward`: soles
+   reaching in front of their ankles by at least `FEET_MIN`): legs ending in feet are whole,
+   however short against the trunk (a short heavy body, 1.27 m, matched at the first size of
+   1.5 m measured its whole legs under 0.8 of its trunk: both lower legs listed, knees 18-20 cm
+   off).
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
    adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
@@ -351,7 +355,8 @@ def _estimate(points, params: FitParams, front=None) -> BodyFit:
     times["voxelize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    poses = coarse_match(coarse, scorer, params)
+    # feet in the scan: its legs are whole (`coarse_match`)
+    poses = coarse_match(coarse, scorer, params, feet=bool(np.linalg.norm(feet_forward(work)) >= FEET_MIN))
     times["match"] = time.perf_counter() - t0
 
     # the best coarse pose; when its fit fails the checks, the next torso candidate (a wrong
