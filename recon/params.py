@@ -915,11 +915,12 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
-    fit_min_agreement: float = field(default=0.70,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
-        metadata={"help": "less of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
-                                           # the surface it shows a camera, where that camera saw a point, confirmed
-                                           # by a point at its depth: the posture was not found
-                                           # (`recon.posture.seen`; chosen on tune62; the library's lowest is 0.74)
+    fit_min_agreement: float = field(default=0.68,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
+        metadata={"help": "less of the trunk's or the limbs' surface the cameras see confirmed by the scan: posture not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
+                                           # the surface its trunk, or its limbs, show a camera, where that camera saw
+                                           # a point, confirmed by a point at its depth: the posture was not found
+                                           # (`recon.posture.seen.confirmed_parts`; chosen on tune62; the library's
+                                           # lowest is 0.73)
     fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
         metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
                                            # this near in depth (in its pixel or the eight around; chosen)

@@ -184,8 +184,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    silently as a fit. The points explained are one half of the test; the other is whether the
    model is where the cameras saw it (`recon.posture.seen`, given the points' view directions): the
    final fit, drawn from each head, shows it surfaces, and of those where the head saw a point, at
-   least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, or
-   the cloud is refused. A model placed wrongly inside the body's outline explains the points
+   least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, for
+   the trunk (waist, chest, head) and for the limbs apart, or the cloud is refused (summed over
+   all sections, the limbs' agreement hid a torso placed 11-24 cm off). A model placed wrongly inside the body's outline explains the points
    nearly as well as a right one, but shows the cameras surfaces where they looked through to
    others, or saw others in front. A fit with left and right swapped shows the cameras the same
    surfaces: this check cannot see it.
@@ -227,7 +228,7 @@ from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_t
 from ..model import BodyFit, SECTIONS
 from ..params import FitParams
 from .reach import reach_arms
-from .seen import confirmed_fraction, scan_views
+from .seen import confirmed_parts, scan_views
 from .volume import voxel_size, voxelize
 
 __all__ = ["FitParams", "estimate_posture", "fit_section"]
@@ -275,9 +276,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
 
 
 def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None:
-    """`ReconError` when the cameras' view contradicts the fitted model: of the surface it shows
-    them where they saw points, under `fit_min_agreement` is confirmed by a point at its depth
-    (`recon.posture.seen`). A model placed wrongly inside the body's outline explains the points
+    """`ReconError` when the cameras' view contradicts the fitted model: of the surface its trunk,
+    or its limbs, show them where they saw points, under `fit_min_agreement` is confirmed by a
+    point at its depth (`recon.posture.seen.confirmed_parts`). A model placed wrongly inside the body's outline explains the points
     about as well as a right one (the coverage check passes it), but shows the cameras surfaces
     where they saw none, or saw them at other depths."""
     vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
@@ -287,11 +288,13 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
     step = max(1, -(-len(points) // params.fit_max_points))
     views = scan_views(points[::step], vd[::step], None if head is None else np.asarray(head)[::step],
                        min_pixel=params.fit_agreement_tolerance / 3)
-    agree = confirmed_fraction(fit.sections, views, params.fit_agreement_tolerance)
-    if agree < params.fit_min_agreement:
+    parts = confirmed_parts(fit.sections, views, params.fit_agreement_tolerance)
+    part = min(parts, key=parts.get)
+    if parts[part] < params.fit_min_agreement:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
-                         f"the scan confirms only {100 * agree:.0f}% of the fitted model's surface "
-                         f"the cameras would see (a body scan: over {100 * params.fit_min_agreement:.0f}%)")
+                         f"the scan confirms only {100 * parts[part]:.0f}% of the surface the cameras "
+                         f"would see of the fitted model's {part} (a body scan: over "
+                         f"{100 * params.fit_min_agreement:.0f}%)")
 
 
 def _fit_facings(points, params: FitParams) -> BodyFit:
