@@ -795,7 +795,8 @@ class FitParams:
                                            # over `recon.posture.match.CROWN_CROTCH` statures) are not whole legs (cut from the
                                            # scan): the trunk sizes the body and the lower legs are listed
                                            # (`recon.posture.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
-                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73
+                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73;
+                                           # not applied when the scan shows feet (`recon.posture.fit.feet_forward`)
                                            # (0 = off; chosen)
     match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
         metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points", "unit": "", "range": (0, 1)})
@@ -914,11 +915,12 @@ class FitParams:
                                            # found (on the library, fits with 5 or more were wrong; chosen)
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
-    fit_min_agreement: float = field(default=0.70,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
-        metadata={"help": "less of the model's surface the cameras would see confirmed by the scan: the posture was not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
-                                           # the surface it shows a camera, where that camera saw a point, confirmed
-                                           # by a point at its depth: the posture was not found
-                                           # (`recon.posture.seen`; chosen on tune62; the library's lowest is 0.74)
+    fit_min_agreement: float = field(default=0.68,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
+        metadata={"help": "less of the trunk's or the limbs' surface the cameras see confirmed by the scan: posture not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
+                                           # the surface its trunk, or its limbs, show a camera, where that camera saw
+                                           # a point, confirmed by a point at its depth: the posture was not found
+                                           # (`recon.posture.seen.confirmed_parts`; chosen on tune62; the library's
+                                           # lowest is 0.73)
     fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
         metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
                                            # this near in depth (in its pixel or the eight around; chosen)

@@ -958,6 +958,40 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
     assert row["outcome"] == "pass", row
 
 
+def test_legs_ending_in_feet_are_never_judged_cut():
+    """Both leg chains measuring under `match_leg_trunk_min` of the trunk are legs cut from the scan,
+    unless the scan shows feet (`recon.posture.fit.feet_forward`): with the limit raised to 1.5, where
+    every whole leg measures short (as a short heavy body matched at too large a first size does),
+    standing keeps both lower legs; cut from the scan (no feet), they are listed."""
+    from bodyscan.benchmarks.fit_table import run_one
+
+    if "standing" not in _library():
+        pytest.skip("library postures missing")
+    from bodyscan import poses
+
+    body = poses.load_body("standing")
+    params = FitParams(match_leg_trunk_min=1.5)
+    row = run_one(body, "k1", 0.02, params)
+    assert row["outcome"] == "pass" and row["unfitted"] == (), row
+    row = run_one(body, "k1_without-lower_leg_l+lower_leg_r", 0.02, params)
+    assert {"lower_leg_l", "lower_leg_r"} <= set(row.get("unfitted", ())), row
+
+
+def test_lower_legs_seen_from_the_side_stay_on_their_points():
+    """a_pose turned 90 degrees (k = 1: the cameras see its sides, each leg's outer side only): the
+    thigh's end and the lower leg's fitted start disagree across the view by 4-6 cm; a lower leg
+    moved parallel onto the knee lay 5 cm off its points and both were listed although seen. Hung
+    from the knee and turned to keep its fitted end (`recon.posture.adjust._rejoin`), both stay."""
+    from bodyscan.benchmarks.fit_table import run_one
+
+    if "a_pose" not in _library():
+        pytest.skip("library postures missing")
+    from bodyscan import poses
+
+    row = run_one(poses.load_body("a_pose"), "k1_turn90", 0.01, FitParams())
+    assert row["outcome"] == "pass" and row["unfitted"] == (), row
+
+
 def _crotch_scene(crotch_z=0.80, spacing=0.01):
     """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
     and a fit whose thighs start 15 cm above the crotch."""

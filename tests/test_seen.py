@@ -75,3 +75,18 @@ def test_a_fit_the_cameras_contradict_is_refused(views):
     with pytest.raises(ReconError, match="confirms only"):
         _check_seen(wrong, pts, vd, None, FitParams())
     _check_seen(wrong, pts, vd, None, FitParams(fit_min_agreement=0.0))   # off
+
+
+def test_a_trunk_the_cameras_contradict_is_not_hidden_by_limbs_that_agree(views):
+    # the trunk 15 cm toward the front camera, the arm where the scan has it: the trunk's own
+    # surface is all in seen air, so the check's fraction is the trunk's (none), not the whole
+    # model's (the arm's confirmed surface would lift it)
+    from bodyscan.recon.posture.seen import confirmed_parts
+
+    moved = TRUNK.moved(np.eye(3), np.array([0.0, -0.15, 0.0]))
+    secs = {"chest": moved, "upper_arm_l": ARM}
+    parts = confirmed_parts(secs, views, 0.03)
+    assert parts["trunk"] < 0.05 and parts["limbs"] > 0.5, parts
+    assert confirmed_fraction(secs, views, 0.03) == parts["trunk"]
+    a = np.array(list(agreement(secs, views, 0.03).values())).sum(axis=0)
+    assert a[1] / a[0] > 0.1                  # summed over both sections, the arm lifted it

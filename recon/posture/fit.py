@@ -109,7 +109,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    told from whole ones by the trunk, crown to the crotch seen in the points, `recon.posture.match.CROWN_CROTCH`
    = 0.52 statures (ANSUR II): when both leg chains measure under `match_leg_trunk_min` of it, the
    trunk sizes the body and the lower legs are listed (a walker without its lower legs had been
-   judged 1.22 m tall, true 1.71; now 1.68).
+   judged 1.22 m tall, true 1.71; now 1.68), unless the scan shows feet (`feet_forward`: soles
+   reaching in front of their ankles by at least `FEET_MIN`): legs ending in feet are whole,
+   however short against the trunk (a short heavy body, 1.27 m, matched at the first size of
+   1.5 m measured its whole legs under 0.8 of its trunk: both lower legs listed, knees 18-20 cm
+   off).
 5. Fine adjustment on the points (paper 2.3(2)): each point within `fit_near_distance` of a section's
    surface is given to the nearest section; each section's axis (position, direction, roll) is
    adjusted by bounded least squares on the point-to-surface distances, its radius set to the mean
@@ -117,7 +121,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
    axis at the model's proportions (straight joints, and a joint whose distal section is
-   unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
+   unfitted; an elbow bent less than 35 degrees counts as straight); a lower leg hangs from the
+   knee, turned to keep its fitted sole (`recon.posture.adjust._rejoin`: moved parallel, a leg
+   seen from the side left its points); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
    bend of the fitted axes (`recon.posture.joints.knee_between`: where two nearly straight axes meet is ill-defined);
    likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
@@ -180,8 +186,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    silently as a fit. The points explained are one half of the test; the other is whether the
    model is where the cameras saw it (`recon.posture.seen`, given the points' view directions): the
    final fit, drawn from each head, shows it surfaces, and of those where the head saw a point, at
-   least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, or
-   the cloud is refused. A model placed wrongly inside the body's outline explains the points
+   least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, for
+   the trunk (waist, chest, head) and for the limbs apart, or the cloud is refused (summed over
+   all sections, the limbs' agreement hid a torso placed 11-24 cm off). A model placed wrongly inside the body's outline explains the points
    nearly as well as a right one, but shows the cameras surfaces where they looked through to
    others, or saw others in front. A fit with left and right swapped shows the cameras the same
    surfaces: this check cannot see it.
@@ -223,7 +230,7 @@ from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_t
 from ..model import BodyFit, SECTIONS
 from ..params import FitParams
 from .reach import reach_arms
-from .seen import confirmed_fraction, scan_views
+from .seen import confirmed_parts, scan_views
 from .volume import voxel_size, voxelize
 
 __all__ = ["FitParams", "estimate_posture", "fit_section"]
@@ -271,9 +278,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
 
 
 def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None:
-    """`ReconError` when the cameras' view contradicts the fitted model: of the surface it shows
-    them where they saw points, under `fit_min_agreement` is confirmed by a point at its depth
-    (`recon.posture.seen`). A model placed wrongly inside the body's outline explains the points
+    """`ReconError` when the cameras' view contradicts the fitted model: of the surface its trunk,
+    or its limbs, show them where they saw points, under `fit_min_agreement` is confirmed by a
+    point at its depth (`recon.posture.seen.confirmed_parts`). A model placed wrongly inside the body's outline explains the points
     about as well as a right one (the coverage check passes it), but shows the cameras surfaces
     where they saw none, or saw them at other depths."""
     vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
@@ -283,11 +290,13 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
     step = max(1, -(-len(points) // params.fit_max_points))
     views = scan_views(points[::step], vd[::step], None if head is None else np.asarray(head)[::step],
                        min_pixel=params.fit_agreement_tolerance / 3)
-    agree = confirmed_fraction(fit.sections, views, params.fit_agreement_tolerance)
-    if agree < params.fit_min_agreement:
+    parts = confirmed_parts(fit.sections, views, params.fit_agreement_tolerance)
+    part = min(parts, key=parts.get)
+    if parts[part] < params.fit_min_agreement:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
-                         f"the scan confirms only {100 * agree:.0f}% of the fitted model's surface "
-                         f"the cameras would see (a body scan: over {100 * params.fit_min_agreement:.0f}%)")
+                         f"the scan confirms only {100 * parts[part]:.0f}% of the surface the cameras "
+                         f"would see of the fitted model's {part} (a body scan: over "
+                         f"{100 * params.fit_min_agreement:.0f}%)")
 
 
 def _fit_facings(points, params: FitParams) -> BodyFit:
@@ -351,7 +360,8 @@ def _estimate(points, params: FitParams, front=None) -> BodyFit:
     times["voxelize"] = time.perf_counter() - t0
 
     t0 = time.perf_counter()
-    poses = coarse_match(coarse, scorer, params)
+    # feet in the scan: its legs are whole (`coarse_match`)
+    poses = coarse_match(coarse, scorer, params, feet=bool(np.linalg.norm(feet_forward(work)) >= FEET_MIN))
     times["match"] = time.perf_counter() - t0
 
     # the best coarse pose; when its fit fails the checks, the next torso candidate (a wrong

@@ -638,7 +638,7 @@ def upright_restart(pose: Pose, placed: list, upright_deg: float):
     return max(up, key=lambda p: p.explained)
 
 
-def coarse_match(points, scorer, params: FitParams) -> list:
+def coarse_match(points, scorer, params: FitParams, feet: bool = False) -> list:
     """Volume matching (paper 2.3(1)-(2)), with the body size re-estimated between rounds.
 
     Of the torso candidates, each placed with all its sections, the one whose model explains most
@@ -647,7 +647,12 @@ def coarse_match(points, scorer, params: FitParams) -> list:
     best pose; for a child sized by its legs while crown to sole differs by more than
     `match_size_disagree`, its match at the crown-to-sole size; then up to `match_alternatives`
     poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
-    best first."""
+    best first.
+
+    ``feet``: the scan shows feet (`recon.posture.fit.feet_forward`: soles reaching in front of
+    their ankles), so its legs are whole, however short their chains measure against the trunk
+    (`size_ratios`' ``min_leg`` is not applied): a body matched at a wrong first size (a short heavy
+    body, 1.27 m, at 1.5 m) can measure its whole legs as short of its trunk as legs cut from a scan."""
     centroid = _thick_core(scorer.vol)
     stature = params.fit_stature if params.fit_stature > 0 else None
     body = standard_body(stature or 1.75)
@@ -736,7 +741,7 @@ def coarse_match(points, scorer, params: FitParams) -> list:
         pose = best
         if stature is not None or rnd >= last:
             break
-        ratios = size_ratios(points, pose, params.match_leg_trunk_min)
+        ratios = size_ratios(points, pose, 0.0 if feet else params.match_leg_trunk_min)
         cut |= set(ratios.get("cut", ()))
         if len(cut) == 2 and "trunk" in ratios:
             # legs judged cut stay cut: matched again, a lower leg may reach across to the other
