@@ -294,7 +294,7 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
     part = min(parts, key=parts.get)
     if parts[part] < params.fit_min_agreement:
         raise ReconError(f"the cloud does not look like a human body, or its posture was not found: "
-                         f"the scan confirms only {100 * parts[part]:.0f}% of the surface the cameras "
+                         f"the scan confirms only {100 * parts[part]:.1f}% of the surface the cameras "
                          f"would see of the fitted model's {part} (a body scan: over "
                          f"{100 * params.fit_min_agreement:.0f}%)")
 
