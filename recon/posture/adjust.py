@@ -252,16 +252,7 @@ def fine_adjust(points, pose: Pose, params: FitParams):
 
 def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -> dict:
     """Reconnect the independently adjusted sections at their joints; ``points`` (n, 3), when
-    given, centre the neck between its sides (`_neck_shift`).
-
-    A lower leg hangs from the knee and turns about it to keep its fitted far end, the sole
-    (`_find_end`), which the foot's points place clear of other sections; moved parallel to the
-    knee, it left its points where the thigh's end and its own fitted start disagree across the
-    view: a body seen from its side shows each leg's outer side only, its thigh's end and its
-    lower leg's start disagreed by 4-6 cm (1-2 cm seen from the front), and the lower leg moved
-    parallel lay 5 cm off its points (`section_cover` 0.06-0.15: both lower legs listed although
-    seen). A forearm moves parallel to the elbow: its far end is the hand, which rests on the
-    hips, thighs or chest in many postures and shares their points."""
+    given, centre the neck between its sides (`_neck_shift`)."""
     out = {}
     w = new["waist"]
     # pelvis: keep it where the coarse match put it along the (adjusted) waist axis
@@ -319,11 +310,7 @@ def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -
             mid_len = float(np.clip((mid - root) @ p.axis, 0.6 * old[prox].length, 1.4 * old[prox].length))
         joint = root + mid_len * p.axis
         out[prox] = p.replace(start=root, end=joint)
-        # a lower leg hangs from the knee and turns to keep its fitted sole (moved parallel, it
-        # left its points: see the docstring); a forearm moves parallel
-        to_end = q.end - joint
-        keep = dist.startswith("lower_leg") and to_end @ q.axis > 0
-        out[dist] = _keep_dir(q, to_end if keep else q.axis, joint, q.length)
+        out[dist] = _keep_dir(q, q.axis, joint, q.length)
     return out
 
 
