@@ -186,7 +186,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    final fit, drawn from each head, shows it surfaces, and of those where the head saw a point, at
    least `fit_min_agreement` must have a point within `fit_agreement_tolerance` of their depth, for
    the trunk (waist, chest, head) and for the limbs apart, or the cloud is refused (summed over
-   all sections, the limbs' agreement hid a torso placed 11-24 cm off). A model placed wrongly inside the body's outline explains the points
+   all sections, the limbs' agreement hid a torso placed 11-24 cm off). A model placed wrongly
+   inside the body's outline explains the points
    nearly as well as a right one, but shows the cameras surfaces where they looked through to
    others, or saw others in front. A fit with left and right swapped shows the cameras the same
    surfaces: this check cannot see it.
@@ -278,9 +279,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
 def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None:
     """`ReconError` when the cameras' view contradicts the fitted model: of the surface its trunk,
     or its limbs, show them where they saw points, under `fit_min_agreement` is confirmed by a
-    point at its depth (`recon.posture.seen.confirmed_parts`). A model placed wrongly inside the body's outline explains the points
-    about as well as a right one (the coverage check passes it), but shows the cameras surfaces
-    where they saw none, or saw them at other depths."""
+    point at its depth (`recon.posture.seen.confirmed_parts`). A model placed wrongly inside the
+    body's outline explains the points about as well as a right one (the coverage check passes
+    it), but shows the cameras surfaces where they saw none, or saw them at other depths."""
     vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
     if not np.isfinite(vd).all():
         raise ReconError("view_dir must be finite (n, 3) directions, one per point")
