@@ -275,20 +275,6 @@ def test_disc_dilation_and_closing_are_the_distance_transforms_thresholds():
             assert np.array_equal(disc_closing(img, r, step), want)
 
 
-def test_taubin_is_trimesh_filter_taubin():
-    """`taubin` (the closed surface's smoothing) moves the vertices of a noisy sphere as trimesh's
-    filter_taubin with equal weights does."""
-    from bodyscan.recon.surface.closed import taubin
-
-    mesh = trimesh.creation.icosphere(subdivisions=3)
-    noisy = mesh.vertices + np.random.default_rng(4).normal(0, 0.01, mesh.vertices.shape)
-    want = trimesh.Trimesh(noisy, mesh.faces, process=False)
-    trimesh.smoothing.filter_taubin(want, 0.5, 1.0 / 1.9, iterations=6)
-    got = taubin(noisy, mesh.faces, 0.5, 1.0 / 1.9, 6)
-    assert np.allclose(got, want.vertices, rtol=0, atol=1e-12)
-    assert np.array_equal(taubin(noisy, mesh.faces, 0.5, 1.0 / 1.9, 0), noisy)
-
-
 def test_closed_output_is_watertight_and_inside_the_body(with_hand_and_foot):
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():

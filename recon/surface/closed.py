@@ -486,7 +486,6 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         better = val > F[box]
         np.copyto(F[box], val, where=better)
         lab[box][better] = j
-    # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
     if seen is not None and band > 0:
         _seen_band(F, lab, lo, voxel, spacing, band, *seen)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
@@ -503,6 +502,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
             if background > 0:    # beside every head's silhouette
                 cut = np.minimum(cut, background * spacing - cams.beside(at, CLOSE * spacing, voxel / 3, projected))
             F.reshape(-1)[part] = np.minimum(F.reshape(-1).take(part), cut)
+    # nothing below the lowest point (the floor the subject stands on is not seen: no sole bulges)
     floor = lo[2] + voxel * np.arange(shape_[2]) - points[:, 2].min()
     low = int(np.searchsorted(floor, F.max(), side="right")) + 1    # the layers the floor can cut
     np.minimum(F[:, :, :low], floor[:low], out=F[:, :, :low])
@@ -514,41 +514,12 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     vertices, faces, face_label = grid_surface(F, lo, voxel, lab)
     if smooth > 0 and len(faces):
         # lambda, mu: Taubin's pass band k = 1 / lambda + 1 / mu = 0.1 (no shrinking below it)
-        vertices = taubin(vertices, faces, 0.5, 1.0 / (2.0 - 0.1), 2 * int(smooth))
+        import trimesh
+
+        mesh = trimesh.Trimesh(vertices, faces, process=False)
+        trimesh.smoothing.filter_taubin(mesh, 0.5, 1.0 / (2.0 - 0.1), iterations=2 * int(smooth))
+        vertices = np.asarray(mesh.vertices)
     return vertices, faces, face_label.astype(np.int8)
-
-
-def taubin(vertices: np.ndarray, faces: np.ndarray, lamb: float, nu: float, iterations: int) -> np.ndarray:
-    """Taubin's smoothing, as ``trimesh.smoothing.filter_taubin`` (equal weights): each step moves
-    every vertex toward the mean of its neighbours along the faces' edges (``d``: that mean less the
-    vertex), by ``lamb * d`` on even steps and by ``-nu * d`` on odd ones.
-
-    Parameters
-    ----------
-    vertices : (v, 3) float
-    faces : (f, 3) int
-        A closed mesh (every vertex's neighbours are the far ends of its faces' edges leaving it).
-    lamb, nu : float
-    iterations : int
-
-    Returns
-    -------
-    (v, 3) float
-        The smoothed vertices (a copy).
-    """
-    from scipy.sparse import csr_matrix
-
-    edges = np.asarray(faces, dtype=np.int64)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2)
-    deg = np.maximum(np.bincount(edges[:, 0], minlength=len(vertices)), 1)
-    mean = csr_matrix((1.0 / deg[edges[:, 0]], (edges[:, 0], edges[:, 1])), shape=(len(vertices),) * 2)
-    out = np.array(vertices, dtype=np.float64)
-    for step in range(int(iterations)):
-        d = mean @ out - out
-        if step % 2 == 0:
-            out += lamb * d
-        else:
-            out -= nu * d
-    return out
 
 
 def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
