@@ -977,6 +977,38 @@ def test_legs_ending_in_feet_are_never_judged_cut():
     assert {"lower_leg_l", "lower_leg_r"} <= set(row.get("unfitted", ())), row
 
 
+def test_lower_legs_seen_from_the_side_stay_on_their_points():
+    """a_pose turned 90 degrees (k = 1: the cameras see its sides, each leg's outer side only): the
+    thigh's end and the lower leg's fitted start disagree across the view by 4-6 cm, and a lower leg
+    moved parallel onto the knee lay off its points (`section_cover` under `fit_min_section_cover`):
+    both were listed although seen. Turned about the knee toward its fitted sole where the parallel
+    move leaves it under `fit_min_section_cover` (`recon.posture.adjust._turn_lower_legs`), both
+    stay; a leg that the parallel move leaves on its points is not turned."""
+    from bodyscan.benchmarks.fit_table import run_one
+    from bodyscan.recon.posture.adjust import _turn_lower_legs
+
+    if "a_pose" not in _library():
+        pytest.skip("library postures missing")
+    from bodyscan import poses
+
+    row = run_one(poses.load_body("a_pose"), "k1_turn90", 0.01, FitParams())
+    assert row["outcome"] == "pass" and row["unfitted"] == (), row
+
+    # a vertical shank on its points (a column of radius 5 cm), and the same shank 6 cm across
+    shank = SectionShape(name="lower_leg_l", start=np.array([0.0, 0.0, 0.5]), end=np.array([0.0, 0.0, 0.1]),
+                         radii=np.array([0.05, 0.05]), frame_x=np.array([1.0, 0.0, 0.0]))
+    pts = shank.surface_points(24, 12)
+    off = shank.replace(start=shank.start + [0.06, 0, 0], end=shank.end + [0.06, 0, 0])
+    fitted = {"lower_leg_l": shank.replace(start=shank.start + [0, 0, 0.02])}   # its fitted far end: the sole
+    params = FitParams()
+    # on its points: kept as it is
+    assert _turn_lower_legs(pts, {"lower_leg_l": shank}, fitted, params)["lower_leg_l"] is shank
+    # off its points: turned about its knee (kept) toward the fitted sole
+    turned = _turn_lower_legs(pts, {"lower_leg_l": off}, fitted, params)["lower_leg_l"]
+    assert np.allclose(turned.start, off.start) and np.isclose(turned.length, off.length)
+    assert np.linalg.norm(turned.end - shank.end) < np.linalg.norm(off.end - shank.end) - 0.03
+
+
 def _crotch_scene(crotch_z=0.80, spacing=0.01):
     """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
     and a fit whose thighs start 15 cm above the crotch."""

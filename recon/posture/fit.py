@@ -121,7 +121,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
    axis at the model's proportions (straight joints, and a joint whose distal section is
-   unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
+   unfitted; an elbow bent less than 35 degrees counts as straight); a lower leg that the
+   rejoining, moved parallel onto its knee, leaves off its points (`fit_min_section_cover`) is
+   turned about the knee to keep its fitted sole (`recon.posture.adjust._turn_lower_legs`: a leg
+   seen from the side); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
    bend of the fitted axes (`recon.posture.joints.knee_between`: where two nearly straight axes meet is ill-defined);
    likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
