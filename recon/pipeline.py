@@ -28,7 +28,8 @@ class Reconstruction:
     vertices : (n, 3) float
         The mesh vertices, metres: the input points by index (unused points are in no face),
         registered between heads and, for ``proposed`` with ``denoise``, moved onto their
-        section's robust surface (`points` keeps the input, `moved` says how far).
+        section's robust surface (or their far part's, for points in no section: `points` keeps
+        the input, `moved` says how far).
     faces : (m, 3) int
         Triangles, outward winding.
     face_section : (m,) int8
@@ -417,10 +418,16 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         t0 = time.perf_counter()
         c = params.clean
-        # hands, feet (labelled as their section) and far parts are denoised with their sections
-        dn = denoise(p, member | meshed, spacing, c.denoise_neighbours, c.denoise_clamp, c.outlier_z or np.inf,
-                     c.outlier_floor, c.outlier_isolation, c.denoise_radius, params.surface.workers,
-                     c.denoise_share, c.denoise_error, c.denoise_reach)
+        # hands, feet (labelled as their section) and far parts are denoised with their sections;
+        # the points of a far part in no section (a limb the fit missed) with that part's own points
+        groups = member | meshed
+        parts = np.zeros((len(p), len(extra)), dtype=bool)
+        for j, e in enumerate(extra):   # (section, points, chart, changes, own points)
+            parts[e[4] if len(e) > 4 else e[1], j] = True
+        parts &= ~groups.any(axis=1)[:, None]
+        dn = denoise(p, np.hstack([groups, parts]), spacing, c.denoise_neighbours, c.denoise_clamp,
+                     c.outlier_z or np.inf, c.outlier_floor, c.outlier_isolation, c.denoise_radius,
+                     params.surface.workers, c.denoise_share, c.denoise_error, c.denoise_reach)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0
