@@ -288,9 +288,12 @@ class SurfaceParams:
         the data are covered by a few large triangles (paper 4.2).
     hull_edge_factor : float
         Delaunay triangulates the convex hull of the projected points: triangles on the
-        triangulation's boundary with a 3D edge longer than this times the median spacing are
+        triangulation's boundary with an edge longer than this times the median spacing are
         peeled off, repeatedly, so that open ends and boundary concavities get no long slivers
-        (paper silent; interior holes are not touched).
+        (paper silent; interior holes are not touched). ``proposed`` measures the edges as the
+        camera saw them (``peel_same_side``) and keeps 6 spacings: on a coarse scan the flanks
+        between the front and rear views stay covered; ``paper`` and ``simple`` measure in 3D and
+        keep 4 (`PAPER`), where longer slivers are air.
     min_section_points : int
         A section with fewer points is skipped with a warning (paper silent).
     mesh_adopted : bool
@@ -469,7 +472,7 @@ class SurfaceParams:
         metadata={"help": "the column and cap projections overlap by this along the axis", "unit": "mean radii", "range": (0.01, 2)})
     max_edge_factor: float = field(default=0.0,  # paper 4.2: holes are covered (0 = no limit)
         metadata={"help": "triangles with an edge longer than this are removed (0 = keep all: holes covered, as the paper)", "unit": "spacings", "range": (0, 1000)})
-    hull_edge_factor: float = field(default=4.0,  # paper silent
+    hull_edge_factor: float = field(default=6.0,  # paper silent; chosen (4 in PAPER and simple)
         metadata={"help": "boundary triangles with an edge longer than this are peeled off", "unit": "spacings", "range": (0.01, 1000)})
     min_section_points: int = field(default=10,  # paper silent
         metadata={"help": "a section with fewer points is skipped with a warning", "unit": "", "range": (3, None)})
@@ -485,7 +488,7 @@ class SurfaceParams:
         metadata={"help": "remove triangles deeper than this inside an adjacent section's model (0 = off)", "unit": "widths", "range": (0, 10)})
     fold_cos: float = field(default=0.0,  # paper: none (-1 = off); chosen, see above
         metadata={"help": "fold rule: long triangles whose normal has a cosine below this with their chart are removed (-1 = off)", "unit": "", "range": (-1, 1)})
-    fold_edge_factor: float = field(default=4.0,  # paper: none; chosen, spacings (= hull_edge_factor)
+    fold_edge_factor: float = field(default=4.0,  # paper: none; chosen, spacings (= PAPER's hull_edge_factor)
         metadata={"help": "fold rule: only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     carve_margin: float = field(default=0.5,  # paper: none (0 = off); chosen, see above, spacings
         metadata={"help": "free-space carving: a triangle crossed by a camera ray to a point this far behind it is removed (0 = off)", "unit": "spacings", "range": (0, 1000)})
@@ -1015,7 +1018,8 @@ PAPER = {
     "orient_model_weight": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "far_view": False,
-    "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0, "cover_max_edge": 0.0,
+    "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
+    "cover_max_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

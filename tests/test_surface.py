@@ -450,6 +450,25 @@ def test_chart_edge_limit_keeps_unseen_rims_up_to_hull_edge_min():
     assert S.face_areas(P, floor).sum() > 0.97 * 2 * np.pi * R * 0.195    # the whole tube
 
 
+def test_coarse_scan_keeps_the_flanks_between_front_and_rear_views():
+    # a thigh-sized cylinder (R 6 cm) scanned front and rear on a 1 cm grid: each camera's image
+    # stops 5 mm inside the silhouette, so the flanks between the two images are 4.8 cm wide and
+    # unseen. proposed's peel (6 spacings) closes them with chords of the cylinder; the paper's
+    # (4 spacings, the floor hull_edge_min 4 cm) leaves them open
+    R = 0.06
+    P, vd = front_rear_cylinder(R, np.arange(-0.055, 0.0551, 0.01), np.arange(0, 0.3, 0.01))
+    front = vd[:, 1] < 0
+    shape = SectionShape("thigh_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
+    proposed = S.section_surface(P, shape, SurfaceParams(), view_dir=vd)
+    paper = S.section_surface(P, shape, SurfaceParams(hull_edge_factor=4.0), view_dir=vd)
+    flank = lambda f: f[front[f].any(axis=1) & ~front[f].all(axis=1)]
+    assert len(flank(paper)) == 0                                        # open flanks
+    assert len(flank(proposed)) > 2 * 0.9 * 0.3 / 0.01                   # both flanks closed along z
+    c = P[proposed].mean(axis=1)
+    assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.0051               # chords: 4.8 cm, sagitta 5 mm
+    assert S.face_areas(P, proposed).sum() > 0.97 * 2 * np.pi * R * 0.29  # the whole tube
+
+
 def test_rejoin_puts_left_out_points_back_with_short_triangles():
     # a tube whose faces around a band of points were removed (as the peel or the air rules do):
     # the band's points come back in short triangles on the tube, none repeating a kept face

@@ -47,9 +47,13 @@ import numpy as np
 
 from ..model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
 from ..clustering.cluster import near_section
-from ..params import SurfaceParams
+from ..params import PAPER, SurfaceParams
 
 TWO_PI = 2 * np.pi
+
+#: The surface settings the simple baseline takes from the paper's (`recon.params.PAPER`), whatever
+#: ``proposed`` uses: no fold rule, the paper's boundary peel in 3D, faces turned by the view alone.
+SIMPLE_SURFACE = ("fold_cos", "hull_edge_factor", "hull_edge_min", "cover_max_edge", "orient_model_weight")
 
 #: The seam copies reach at most this many median point spacings past theta = 0 and 2*pi: enough
 #: for Delaunay to see the same neighbourhoods on both sides, few copies on dense scans.
@@ -908,9 +912,8 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     jobs += list(extra)
 
     # the simple baseline keeps the paper's surface: no fold rule (as for the inner triangles), the
-    # boundary peel without our hull_edge_min, and faces turned by the view alone
-    sp = params if drop_inner else dataclasses.replace(params, fold_cos=-1.0, hull_edge_min=0.0,
-                                                               cover_max_edge=0.0, orient_model_weight=0.0)
+    # paper's boundary peel, and faces turned by the view alone
+    sp = params if drop_inner else dataclasses.replace(params, **{k: PAPER[k] for k in SIMPLE_SURFACE})
 
     def run(job):
         own = dataclasses.replace(sp, **job[3]) if len(job) > 3 else sp
