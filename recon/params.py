@@ -934,6 +934,12 @@ class FitParams:
                                            # front and back it keeps the 70 degree cone. Measured: a child's raised arm
                                            # beside the head took the head at 69 degrees (child_arms_raised k2, k3 at 10 mm:
                                            # 7.8 / 8.2 cm median -> 2.7 / 2.8); 45 let a_pose k1 pick a wrong size (chosen)
+    match_head_max_lean: float = field(default=60.0,  # 2.3(1): a torso whose head leans further than this forward or back
+        metadata={"help": "a torso whose head leans further forward or back from its chest slides down to the crown on the trunk's axis", "unit": "deg", "range": (0, 180)})
+                                           # from its chest's axis, degrees, slides down to the crown found on the
+                                           # trunk's axis (`match_crown_on_trunk`) whatever the points say: the neck's
+                                           # range of flexion (about 50 degrees), 10 more for the chest's own error
+                                           # (`recon.posture.match.head_in_range`; chosen)
     fit_anchor_min_stature: float = field(default=1.5,  # 2.3(2): anchor on the crown only for bodies this tall, m (chosen)
         metadata={"help": "anchor on the crown only for bodies at least this tall", "unit": "m", "range": (0, 3)})
     fit_anchor_max_shift: float = field(default=0.04,  # 2.3(2): the neck and head follow the crown this much further than the

@@ -1151,3 +1151,36 @@ def test_a_lower_leg_stands_on_its_own_points_when_its_thigh_is_missing_from_the
         assert f"lower_leg_{side}" in fit.sections and f"lower_leg_{side}" not in fit.unfitted
         assert err[f"knee_{side}"] < 0.06 and err[f"ankle_{side}"] < 0.05 and ang[f"lower_leg_{side}"] < 20
 
+
+
+def test_a_head_leaning_beyond_the_necks_flexion_does_not_place_the_torso():
+    """Body 17 of the corpus of seed 0 (tune62: arms at the sides) turned 90 degrees, k = 1 (the
+    cameras see its sides): the torso matched 12 cm high with its head leaning 67 degrees forward
+    onto the face explained more points (0.86) than the torso slid down to the crown on the
+    trunk's axis (0.83), a silent nonsense fit (shoulders and neck 13-16 cm off;
+    `match_head_max_lean` = 180: the rule off). A head leaning forward or back beyond the neck's
+    flexion (`recon.posture.match.head_in_range`) lets the slid torso win: the fit meets issue
+    4's targets."""
+    pytest.importorskip("torch", reason="the generator needs the 'bodies' extra (torch)")
+    pytest.importorskip("anny", reason="the generator needs the 'bodies' extra (anny)")
+    from bodyscan.benchmarks.fit_table import run_one
+    from bodyscan.poses.sample import sample_body
+    from bodyscan.recon.posture.match import head_in_range
+
+    body = sample_body(0, 17)
+    off = run_one(body, "k1_turn90", 0.01, FitParams(match_head_max_lean=180.0))
+    assert off["outcome"] == "WRONG" or off.get("silent"), off    # the case, without the rule
+    row = run_one(body, "k1_turn90", 0.01, FitParams())
+    assert row["outcome"] == "pass", row
+
+    # the lean is measured towards the chest's front or back only
+    chest = SectionShape(name="chest", start=np.zeros(3), end=np.array([0, 0, 0.3]),
+                         radii=np.array([0.15, 0.1]), frame_x=np.array([1.0, 0, 0]))
+
+    def head(deg, towards):
+        d = np.cos(np.radians(deg)) * np.array([0, 0, 1.0]) + np.sin(np.radians(deg)) * np.asarray(towards)
+        return chest.replace(name="head", start=chest.end, end=chest.end + 0.2 * d)
+
+    assert head_in_range({"chest": chest, "head": head(55, [0, 1, 0])}, 60)
+    assert not head_in_range({"chest": chest, "head": head(65, [0, -1, 0])}, 60)
+    assert head_in_range({"chest": chest, "head": head(80, [1, 0, 0])}, 60)   # sideways: not flexion

@@ -74,7 +74,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    held off it, a body leaning sideways, and finds the shoulders). This holds at any size, also
    below `fit_anchor_min_stature` where the crown on the head's axis is not used (a child's larger
    head only leaves the slid torso a little high; a child with raised arms at 20 mm, matched again
-   at 1.40 m with its torso 17 cm high and its head in the air, was a silent nonsense fit).
+   at 1.40 m with its torso 17 cm high and its head in the air, was a silent nonsense fit). A head
+   above a torso matched too high can also find points by leaning onto the face or the back of
+   the skull, and explain them as well (a body seen from its side): where it leans forward or back
+   from the chest beyond the neck's range of flexion (`match_head_max_lean`,
+   `recon.posture.match.head_in_range`), the torso slid down to the crown on the trunk's axis is
+   kept whatever the points say.
 4. Body size: the paper uses the average adult male. The first match uses the extent of the cloud
    along the torso axis (at least `match_min_first_stature`; every torso candidate is matched
    again, locally, at that size); then each leg chain's length (hip to

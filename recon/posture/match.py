@@ -403,10 +403,13 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
             if not on_trunk:
                 return moved
             # the trunk's axis may miss a head held off it (a body leaning sideways) and find the
-            # shoulders: the points decide between the torso slid down and where it was
+            # shoulders: the points decide between the torso slid down and where it was, unless
+            # the head where it was leans forward or back beyond the neck's flexion (onto the face
+            # or the back of the skull: the torso sits too high, a body seen from its side)
             stay = _place_body(points, scorer_base, centre, R, body, params, dirs, anchor=False)
             sample = points[::max(1, len(points) // params.match_explain_points)]
-            return max((stay, moved), key=lambda p: explained_fraction(sample, p.sections, params.match_explain_distance))
+            return max((stay, moved), key=lambda p: (head_in_range(p.sections, params.match_head_max_lean),
+                                                     explained_fraction(sample, p.sections, params.match_explain_distance)))
     total += sh * Lh
     scorer.claim(secs["head"])
     # limb roots in the chest (arms) and waist (legs) frames; legs first: hanging hands reach
@@ -488,6 +491,22 @@ def explained_fraction(points, sections: dict, near: float) -> float:
     """Fraction of ``points`` (n, 3) within ``near`` metres of the surface of any of ``sections``."""
     D = np.min([s.distance(points) for s in sections.values()], axis=0)
     return float(np.mean(D < near))
+
+
+def head_in_range(secs: dict, max_lean: float) -> bool:
+    """Whether the head of the placed sections ``secs`` leans at most ``max_lean`` degrees from its
+    chest's axis towards the chest's front or back (flexion or extension of the neck; sideways the
+    head's search has its own limit, `match_head_max_side`).
+
+    The volume pins the torso poorly along its own axis; a torso matched too high leaves its head
+    column to lean onto the face or the back of the skull, which it explains as well as an upright
+    one (bodies seen from their sides, k = 1: heads leaning 65-70 degrees forward, torsos 12-17 cm
+    high, silent nonsense fits)."""
+    c = secs["chest"]
+    x = c.frame_x - c.axis * (c.frame_x @ c.axis)
+    y = np.cross(c.axis, x / np.linalg.norm(x))
+    d = secs["head"].axis
+    return bool(np.degrees(np.arctan2(abs(d @ y), d @ c.axis)) <= max_lean)
 
 
 def _crown_shift(points, head: SectionShape) -> float | None:
