@@ -1152,7 +1152,6 @@ def test_a_lower_leg_stands_on_its_own_points_when_its_thigh_is_missing_from_the
         assert err[f"knee_{side}"] < 0.06 and err[f"ankle_{side}"] < 0.05 and ang[f"lower_leg_{side}"] < 20
 
 
-
 def test_a_head_leaning_beyond_the_necks_flexion_does_not_place_the_torso():
     """Body 17 of the corpus of seed 0 (tune62: arms at the sides) turned 90 degrees, k = 1 (the
     cameras see its sides): the torso matched 12 cm high with its head leaning 67 degrees forward

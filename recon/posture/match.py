@@ -500,13 +500,10 @@ def head_in_range(secs: dict, max_lean: float) -> bool:
 
     The volume pins the torso poorly along its own axis; a torso matched too high leaves its head
     column to lean onto the face or the back of the skull, which it explains as well as an upright
-    one (bodies seen from their sides, k = 1: heads leaning 65-70 degrees forward, torsos 12-17 cm
-    high, silent nonsense fits)."""
-    c = secs["chest"]
-    x = c.frame_x - c.axis * (c.frame_x @ c.axis)
-    y = np.cross(c.axis, x / np.linalg.norm(x))
+    one (bodies seen from their sides): silent nonsense fits."""
+    _, front, axis = secs["chest"].frame
     d = secs["head"].axis
-    return bool(np.degrees(np.arctan2(abs(d @ y), d @ c.axis)) <= max_lean)
+    return bool(np.degrees(np.arctan2(abs(d @ front), d @ axis)) <= max_lean)
 
 
 def _crown_shift(points, head: SectionShape) -> float | None:
