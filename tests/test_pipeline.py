@@ -186,6 +186,32 @@ def test_points_of_a_limb_the_fit_missed_are_denoised_with_their_far_part():
     assert agree.mean() > 0.9   # 0.98 (0.56 undenoised)
 
 
+def test_an_unfitted_arm_against_the_trunk_is_meshed_on_its_own_charts_without_air():
+    # the left arm 1 cm from the torso and missing from the fit: its points lie within T_d of the
+    # trunk and are clustered into it, whose chart (one layer around its axis) leaves them out
+    # (a third of them, before); the points no face uses are meshed as parts of their own
+    P, L, _, vd, fit = capsule_body(gap=0.01, pixel=0.005)
+    part = BodyFit(sections={k: s for k, s in fit.sections.items() if k not in ("upper_arm_l", "forearm_l")},
+                   joints=fit.joints)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        rec = reconstruct(P, "proposed", fit=part, view_dir=vd)
+    used = np.zeros(len(P), dtype=bool)
+    used[rec.faces.ravel()] = True
+    for name in ("upper_arm_l", "forearm_l"):
+        on = L == SECTIONS.index(name)
+        assert used[on].mean() > 0.97   # 0.99 (0.68 for the whole arm before)
+        tri = rec.vertices[rec.faces[on[rec.faces].all(axis=1)]]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        out = np.einsum("ij,ij->i", n, model_outward(fit.sections[name], tri.mean(axis=1)))
+        assert np.mean(out > 0) > 0.97   # turned outward: 0.99
+    assert rec.points_unmeshed < 0.01 * len(P)
+    tri = rec.vertices[rec.faces]
+    area = np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    gap = np.min([s.coords(tri.mean(axis=1))[0] for s in fit.sections.values()], axis=0)
+    assert area[gap > 0.005].sum() < 0.002 * area.sum()   # nothing in the air between arm and trunk
+
+
 def test_a_fit_far_from_the_cloud_is_an_error_not_an_empty_mesh(capsules):
     P, _, _, _, fit, _ = capsules
     far = BodyFit(sections={k: s.replace(start=s.start + 5, end=s.end + 5) for k, s in fit.sections.items()},

@@ -20,7 +20,9 @@ image, whatever its shape); otherwise (the chart kept for `closed_surface`) an e
 along the part's principal axis (open at the end that joins the body, closed by a cap at the
 other), triangulated like a section (`recon.surface.mesh.section_surface`). Then the merge and the
 air rules as for any section; the faces carry the section whose axis comes nearest. Smaller parts
-are outliers and stay out of the surface.
+are outliers and stay out of the surface. The points every chart left out get the same charts
+afterwards (`recon.surface.mesh.left_out_charts`: a limb listed unfitted beside the trunk, a second
+layer its chart cannot hold).
 
 The closed surface (the method ``proposed-closed``) is `recon.surface.closed`.
 """

@@ -943,7 +943,69 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=sp.orient_model_weight)
+    if drop_inner and params.far_charts:
+        more, more_sec = left_out_charts(points, faces, member, extra, fit, sp, spacing, view_dir, tree)
+        faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     return faces, sec, skipped
+
+
+def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, extra, fit: BodyFit,
+                    params: SurfaceParams, spacing: float, view_dir=None, tree=None):
+    """Faces for the points that every chart left out: parts of their own (`far_charts`).
+
+    A section's chart is one height field around its axis, so it holds one layer: the points of
+    a limb the fit listed unfitted, clustered into the trunk beside it, lie at the same angle and
+    height as the trunk's own surface, and no rule keeps a triangle between the two layers. The
+    points no face uses are grouped into connected parts and meshed like the points beyond T_d
+    (`recon.surface.complete.far_charts`: each part's range images, joined to the meshed points
+    around it), under the same air rules; their faces face their cameras (the fitted section
+    nearest them is not their surface, so its outward direction does not turn them).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+        The surface so far.
+    member : (n, 11) bool
+    extra : list
+        The far and extremity charts already meshed (`reconstruct_surfaces`).
+    fit : BodyFit
+    params : SurfaceParams
+    spacing : float
+    view_dir : (n, 3) or (3,) float, optional
+    tree : scipy.spatial.cKDTree, optional
+        Of ``points``.
+
+    Returns
+    -------
+    faces : (k', 3) int
+    face_section : (k',) int8
+    """
+    from .complete import far_charts
+
+    used = np.zeros(len(points), dtype=bool)
+    used[np.asarray(faces, dtype=np.int64).ravel()] = True
+    left = member.any(axis=1)
+    for job in extra:
+        left[job[1]] = True
+    left &= ~used
+    none = (np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8))
+    if left.sum() < params.far_min_points:
+        return none
+    jobs = far_charts(points, left, fit.sections, member & ~left[:, None], spacing, params.far_link,
+                      params.far_join, params.far_min_points, params.far_max_edge, tree)
+    if not jobs:
+        return none
+    more = [_chart_faces(points, job[1], job, dataclasses.replace(params, **job[3]), spacing, view_dir)
+            for job in jobs]
+    sec = np.concatenate([np.full(len(f), job[0], dtype=np.int8) for f, job in zip(more, jobs)])
+    more = np.concatenate(more)
+    if params.inner_depth > 0:
+        keep = ~inside_neighbours(points, more, sec, fit, params.inner_depth)
+        more, sec = more[keep], sec[keep]
+    if view_dir is not None:
+        more, sec = remove_air(points, more, sec, view_dir, spacing, params, tree)
+    return orient_faces(points, more, sec, fit, view_dir), sec
 
 
 def _chart_faces(points: np.ndarray, idx: np.ndarray, job, params: SurfaceParams, spacing: float,
