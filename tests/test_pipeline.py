@@ -161,15 +161,22 @@ def test_missing_section_is_skipped_with_a_warning_and_output_not_empty(capsules
     assert "forearm_l" in rec.skipped and len(rec.faces) > 1000
 
 
-def test_points_of_a_limb_the_fit_missed_are_denoised_with_their_far_part():
-    # the left arm 8.5 cm from the torso and missing from the fit: most of its forearm lies in no
-    # section and is meshed as a far part; its points are denoised with that part's own points
-    P, L, _, vd, fit = capsule_body(gap=0.085, pixel=0.005)
+def without_left_arm(gap):
+    """`capsule_body` with its left arm ``gap`` from the torso, 5 mm pixels, reconstructed by
+    `proposed` from the exact fit without the arm (a limb the fit missed): P, L, fit, rec."""
+    P, L, _, vd, fit = capsule_body(gap=gap, pixel=0.005)
     part = BodyFit(sections={k: s for k, s in fit.sections.items() if k not in ("upper_arm_l", "forearm_l")},
                    joints=fit.joints)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         rec = reconstruct(P, "proposed", fit=part, view_dir=vd)
+    return P, L, fit, rec
+
+
+def test_points_of_a_limb_the_fit_missed_are_denoised_with_their_far_part():
+    # the left arm 8.5 cm from the torso and missing from the fit: most of its forearm lies in no
+    # section and is meshed as a far part; its points are denoised with that part's own points
+    P, L, fit, rec = without_left_arm(0.085)
     arm = fit.sections["forearm_l"]
     used = np.zeros(len(P), dtype=bool)
     used[rec.faces.ravel()] = True
@@ -190,12 +197,7 @@ def test_an_unfitted_arm_against_the_trunk_is_meshed_on_its_own_charts_without_a
     # the left arm 1 cm from the torso and missing from the fit: its points lie within T_d of the
     # trunk and are clustered into it, whose chart (one layer around its axis) leaves them out
     # (a third of them, before); the points no face uses are meshed as parts of their own
-    P, L, _, vd, fit = capsule_body(gap=0.01, pixel=0.005)
-    part = BodyFit(sections={k: s for k, s in fit.sections.items() if k not in ("upper_arm_l", "forearm_l")},
-                   joints=fit.joints)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        rec = reconstruct(P, "proposed", fit=part, view_dir=vd)
+    P, L, fit, rec = without_left_arm(0.01)
     used = np.zeros(len(P), dtype=bool)
     used[rec.faces.ravel()] = True
     for name in ("upper_arm_l", "forearm_l"):
