@@ -613,3 +613,28 @@ def test_tilt_rule_removes_long_triangles_standing_across_the_surface(depth, rem
     gone = ~np.isin(keys[:len(faces)], keys[len(faces):])
     assert (gone[:4] == removed).all()
     assert not gone[4:].any()                                       # the plane's triangles stay
+
+
+def test_a_far_part_faces_its_camera_not_the_nearest_section():
+    """The top of a foot whose lower leg the fit missed (a far part, charted on its own): a flat
+    patch at the floor seen by the front camera from 6 degrees above. The nearest fitted section,
+    the thigh 40 cm above, has its outward direction downward there, so it must not turn the
+    patch's faces: they face up, toward the camera (turned down before)."""
+    from bodyscan.recon.surface.complete import part_shape
+
+    x, y = np.meshgrid(np.arange(-0.04, 0.04, 0.005), np.arange(-0.12, 0.0, 0.005))
+    P = np.column_stack([x.ravel(), y.ravel(), 0.03 + 0.0002 * np.sin(40 * x.ravel())])
+    up = np.radians(6)
+    vd = np.tile([0.0, -np.cos(up), np.sin(up)], (len(P), 1))    # toward the camera, in front
+    thigh = SectionShape("thigh_l", (0.0, 0.0, 0.85), (0.0, 0.0, 0.45), (0.07, 0.07), (1.0, 0, 0))
+    fit = BodyFit(sections={"thigh_l": thigh}, joints={})
+    idx = np.arange(len(P))
+    job = (SECTIONS.index("thigh_l"), idx, part_shape(P, P[:0], "thigh_l"), {"max_edge_factor": 4.0}, idx)
+    with pytest.warns(UserWarning, match="thigh_l: only 0 points"):   # the thigh's own points are not here
+        faces, sec, _ = S.reconstruct_surfaces(P, np.zeros((len(P), len(SECTIONS)), bool), fit, SurfaceParams(),
+                                               view_dir=vd, spacing=0.005, extra=[job])
+    assert len(faces) > 0.8 * 2 * len(P)
+    tri = P[faces]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    area = np.linalg.norm(n, axis=1)
+    assert area[n[:, 2] > 0].sum() > 0.99 * area.sum()

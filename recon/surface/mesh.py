@@ -523,7 +523,7 @@ def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
 
 def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
                  view_dir: np.ndarray | None = None, min_agreement: float = 0.5,
-                 model_weight: float = 0.0) -> np.ndarray:
+                 model_weight=0.0) -> np.ndarray:
     """Faces (k, 3) with their winding flipped where needed so that normals point outward.
 
     The outward side is the one the sensor saw: the mean viewing direction of the face's vertices
@@ -533,11 +533,13 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     faces the side of the unit viewing direction plus w times the model's outward direction:
     the model decides where the face turns more than 1 / w times as much toward or away from it
     as toward or away from the camera (a face nearly edge-on to its camera, whose small tilt
-    toward it is noise; ``SurfaceParams.orient_model_weight``).
+    toward it is noise; ``SurfaceParams.orient_model_weight``). ``model_weight`` is a float or
+    one per face (k,).
     """
     faces = faces.copy()
     if len(faces) == 0:
         return faces
+    w = np.broadcast_to(np.asarray(model_weight, dtype=float), (len(faces),))
     p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
     normal = np.cross(p1 - p0, p2 - p0)
     unclear = np.ones(len(faces), dtype=bool)
@@ -549,19 +551,19 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
             ref = np.repeat(vd[None, :], len(faces), axis=0)
         length = np.sqrt(np.einsum("ij,ij->i", ref, ref))
         unclear = length < (3 if vd.ndim == 2 else 1) * min_agreement
-        if model_weight > 0:
+        if (w > 0).any():
             ref /= np.maximum(length, 1e-300)[:, None]
     else:
         ref = np.zeros_like(normal)
     model = unclear
-    if model_weight > 0:   # the model can overturn the view only where |cos| to it is under the weight
+    if (w > 0).any():   # the model can overturn the view only where |cos| to it is under the weight
         area2 = np.einsum("ij,ij->i", normal, normal)
-        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < model_weight ** 2 * area2)
+        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < w ** 2 * area2)
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(model & (face_section == j))
         if len(sel) and name in fit.sections:
             out = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
-            ref[sel] = np.where(unclear[sel, None], out, ref[sel] + model_weight * out)
+            ref[sel] = np.where(unclear[sel, None], out, ref[sel] + w[sel, None] * out)
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
     return faces
@@ -942,7 +944,13 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         if view_dir is not None:
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
-    faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=sp.orient_model_weight)
+    # the model turns faces of the fitted sections only: a hand's, a foot's or a far part's chart
+    # is not its section's surface (a foot points forward from its lower leg's axis)
+    own = np.zeros(len(points), dtype=bool)
+    for job in extra:
+        own[job[4] if len(job) > 4 else job[1]] = True
+    weight = np.where(own[faces].sum(axis=1) >= 2, 0.0, sp.orient_model_weight)
+    faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=weight)
     if drop_inner and params.far_charts:
         more, more_sec = left_out_charts(points, faces, member, extra, fit, sp, spacing, view_dir, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
