@@ -169,10 +169,13 @@ def _match_torso(scorer: Scorer, centroid: np.ndarray, body: StandardBody, param
     lam = params.match_upright_prior
     cos_up = np.cos(np.radians(params.match_upright_start))
 
+    scale = np.array([rad[0], rad[1], L])
+    loc_t, loc_r, n_t = tmpl * scale, ring * scale, len(tmpl)
+
     def score(c, R):
-        return float(_column_score(scorer, c, R.T[None], L, rad, tmpl)[0]
-                     - _column_score(scorer, c, R.T[None], L, rad, ring)[0]
-                     - lam * (1.0 - abs(R[2, 2])))
+        # `_column_score` of both templates, their samples looked up in one call (the same numbers)
+        w = scorer.lookup(np.concatenate([c + loc_t @ R.T, c + loc_r @ R.T]))
+        return float(w[:n_t].mean() - w[n_t:].mean() - lam * (1.0 - abs(R[2, 2])))
 
     if starts is None:
         dirs = np.vstack([[0.0, 0.0, 1.0], fibonacci_sphere(params.match_torso_directions, hemisphere=True)])
@@ -260,17 +263,23 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
         return d2 @ R[:, 2] > np.maximum(d1 @ R[:, 2], 0.0) + params.match_thigh_max_rise
 
     loc2 = _LIMB_T * np.array([r2[0], r2[1], L2])
+    # the distal samples about the origin in every direction's frame, for the beam below (the same
+    # products as ``loc2 @ F[ok]``, made once)
+    locF = None if shell else loc2 @ F
 
     def folded_back(pts, w, d1):
         # distal samples inside the proximal column weigh as claimed: no folding back over the same limb
-        h = np.clip((pts - root) @ d1, 0.0, L1)
-        inside = np.linalg.norm(pts - root - h[..., None] * d1, axis=-1) < r1[0] + r2[0]
+        rel = pts - root
+        h = np.clip(rel @ d1, 0.0, L1)
+        off = rel - h[..., None] * d1
+        off *= off   # the squared distance from the axis summed as np.linalg.norm does: ((x + y) + z)
+        inside = np.sqrt(off[..., 0] + off[..., 1] + off[..., 2]) < r1[0] + r2[0]
         return np.where(inside, np.minimum(w, scorer.claimed), w).mean(axis=-1)
 
-    def distal(elbow, d1, frames):
+    def distal(elbow, d1, ok):
         if shell:
-            return _shell_score(scorer, elbow, frames, L2, r2, avoid=(root, d1, L1, r1[0]))
-        pts = elbow + loc2 @ frames
+            return _shell_score(scorer, elbow, F[ok], L2, r2, avoid=(root, d1, L1, r1[0]))
+        pts = elbow + locF[ok]
         return folded_back(pts, scorer.lookup(pts), d1)
 
     order = np.argsort(-s1)
@@ -285,7 +294,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
         ok = ~((dirs @ dirs[i] < cos_max) | shin_up(dirs[i], dirs)
                | ((L1 * dirs[i] + L2 * dirs) @ outward < -params.match_max_adduction * (L1 + L2)))
         tot = np.full(len(dirs), -np.inf)
-        tot[ok] = s1[i] * L1 + distal(elbow, dirs[i], F[ok]) * L2   # only the bends a chain can take
+        tot[ok] = s1[i] * L1 + distal(elbow, dirs[i], ok) * L2   # only the bends a chain can take
         j = int(np.argmax(tot))
         if tot[j] > best[0]:
             best = (tot[j], dirs[i], dirs[j])
@@ -309,7 +318,8 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
         fa = frames_from_dirs(a[None])
         if shell:
             s1 = _shell_score(scorer, root, fa, L1, r1)
-            return -(s1[0] * L1 + distal(e, a, frames_from_dirs(b[None]))[0] * L2)
+            return -(s1[0] * L1 + _shell_score(scorer, e, frames_from_dirs(b[None]), L2, r2,
+                                               avoid=(root, a, L1, r1[0]))[0] * L2)
         p2 = e + loc2 @ frames_from_dirs(b[None])
         w = scorer.lookup(np.concatenate([root + loc1 @ fa, p2], axis=-2))
         return -(w[:, :n1].mean(axis=-1)[0] * L1 + folded_back(p2, w[:, n1:], a)[0] * L2)
