@@ -454,22 +454,17 @@ class SurfaceParams:
         ``tilt_cos`` with its vertices' normals stands across the surface the data show (a cover
         spanning a curved hole, a rim face across a thin part, fingers joined across their gaps):
         the paper's spurious surface, which the data do not support. It is removed.
-    orient_model_weight, orient_noise_weight : float
+    orient_model_weight : float
         Orientation (paper: none, the sensor's side alone, ``0``; ``proposed`` only): a triangle
-        faces the side of its vertices' mean viewing direction (unit) plus ``w`` times the section
-        model's outward direction at its centroid (`recon.surface.mesh.orient_faces`): the model
-        decides where the triangle turns more than ``1 / w`` times as much toward or away from the
-        model's outward direction as toward or away from the camera. A triangle turned nearly
-        edge-on to the camera that saw its corners (a limb's flank at a grazing view, a thigh seen
-        along its length) cannot be told outward from inward by that camera: the small tilt that
-        decides is the triangulation's or the noise's. How small depends on the noise, so ``w`` is
-        set by the data: ``orient_model_weight`` on a noise-free cloud (the triangulation's tilt
-        alone), and at least ``orient_noise_weight`` times the residual noise scale over the point
-        spacing (the tilt that noise gives an edge of one spacing; the scale is the denoising
-        fits', `recon.clean.denoise.Denoised.scale`, measured along their normals: without
-        ``denoise`` there is none, and ``orient_model_weight`` alone applies). Only the fitted
-        sections' own charts: a hand's, a foot's or a far part's faces its camera alone (no fitted
-        section is their surface). (chosen)
+        faces the side of its vertices' mean viewing direction (unit) plus this times the section
+        model's outward direction at its centroid (`recon.surface.mesh.orient_faces`). A triangle
+        turned nearly edge-on to the camera that saw its corners (a limb's flank at a grazing view,
+        a cover across the strip neither camera sees) cannot be told outward from inward by that
+        camera: the small tilt that decides is the noise's or the triangulation's, and half such
+        triangles came out flipped. With weight ``w`` the model decides where the triangle turns
+        more than ``1 / w`` times as much toward or away from the model's outward direction as
+        toward or away from the camera. Only the fitted sections' own charts: a hand's, a foot's
+        or a far part's faces its camera alone (no fitted section is their surface). (chosen)
     """
 
     seam_overlap: float = field(default=0.6,  # paper 3.3, radians
@@ -522,13 +517,9 @@ class SurfaceParams:
     tilt_min_edge: float = field(default=2.5, metadata={
         "help": "the tilt rule tests only triangles with an edge longer than this", "unit": "spacings",
         "range": (0, 1000)})
-    orient_model_weight: float = field(default=0.15, metadata={
-        "help": "orientation, noise-free: a triangle faces its vertices' viewing direction plus "
-                "this times the model's outward direction (0 = the view alone, as the paper)",
-        "unit": "", "range": (0.0, 1000.0)})
-    orient_noise_weight: float = field(default=1.5, metadata={
-        "help": "orientation under noise: the model's weight is at least this times the residual "
-                "noise scale over the point spacing (0 = orient_model_weight alone)", "unit": "",
+    orient_model_weight: float = field(default=0.5, metadata={
+        "help": "orientation: a triangle faces its vertices' viewing direction plus this times the "
+                "model's outward direction (0 = the view alone, as the paper)", "unit": "",
         "range": (0.0, 1000.0)})
     hull_edge_min: float = field(default=0.04, metadata={
         "help": "the boundary peel and the charts' edge limits never remove triangles shorter "
@@ -548,8 +539,9 @@ class SurfaceParams:
         "help": "points the rules left out of every face are put back with triangles no longer than "
                 "this, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
-        "help": "mesh the points beyond T_d of every section and those the charts left out "
-                "(hands, feet, unfitted sections) on charts of their own (False: the paper)",
+        "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections), and "
+                "those every section's chart left out, on charts of their own, joined to their "
+                "section (False: the paper)",
         "unit": "", "range": (False, True)})
     far_link: float = field(default=4.0, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
@@ -1031,7 +1023,7 @@ PAPER = {
     "adopt_unlabeled": False, "refine_adjacent": False,
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0, "tilt_cos": 0.0,
-    "orient_model_weight": 0.0, "orient_noise_weight": 0.0,
+    "orient_model_weight": 0.0,
     "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "far_view": False,
     "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,

@@ -412,7 +412,6 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
                                  spacing <= sp.far_hand_spacing) + extra
     t_mesh = time.perf_counter() - t0
     mesh_points = p
-    noise = 0.0   # the residual noise scale, metres (none measured without the denoising)
     rejected = np.zeros(len(p), dtype=bool)
     if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.clean.denoise)
         from .clean.denoise import denoise
@@ -429,7 +428,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         dn = denoise(p, np.hstack([groups, parts]), spacing, c.denoise_neighbours, c.denoise_clamp,
                      c.outlier_z or np.inf, c.outlier_floor, c.outlier_isolation, c.denoise_radius,
                      params.surface.workers, c.denoise_share, c.denoise_error, c.denoise_reach)
-        mesh_points, rejected, noise = dn.points, dn.rejected, dn.scale
+        mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -437,7 +436,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(mesh_points, meshed, fit, params.surface, vd,
                                                             drop_inner=steps == "proposed",
-                                                            spacing=spacing, extra=extra, noise=noise)
+                                                            spacing=spacing, extra=extra)
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = t_mesh + time.perf_counter() - t0

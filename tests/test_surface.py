@@ -146,61 +146,6 @@ def test_orientation_of_a_face_edge_on_to_its_camera_follows_the_model():
     assert normal(0.05)[0] < 0                         # a weight under the tilt: the camera decides
 
 
-def _outward(P, faces):
-    """(k,) bool: faces of the z-axis cylinder ``P`` whose normal points away from its axis."""
-    p = P[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    return np.einsum("ij,ij->i", n, p.mean(axis=1) * [1, 1, 0]) > 0
-
-
-def test_orientation_of_a_clean_scan_follows_its_camera_where_the_model_is_wrong():
-    # a cylinder (R 6 cm) scanned front and rear without noise, columns every 5 degrees to 80
-    # degrees from the view (faces down to |cos| 0.2 to their camera), meshed on its own chart,
-    # then turned outward with a model whose axis lies 10 cm beside it (a part the section's
-    # model does not describe, as a foot in its lower leg's chart): on the flank nearer the
-    # model's axis its outward direction points into the cylinder. A noise-free triangulation's
-    # tilt toward its camera is right: every face seen from one side points outward
-    R = 0.06
-    P, vd = front_rear_cylinder(R, R * np.sin(np.radians(np.arange(-80, 80.1, 5))), np.arange(0, 0.3, 0.005))
-    name = "lower_leg_l"
-    shape = SectionShape(name, [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
-    faces = S.section_surface(P, shape, SurfaceParams(), view_dir=vd)
-    beside = BodyFit(sections={name: SectionShape(name, [0.1, 0, 0], [0.1, 0, 0.3], [R, R], [1, 0, 0],
-                                                  closed=(False, False))}, joints={})
-    sec = np.full(len(faces), SECTIONS.index(name), np.int8)
-    one_side = np.abs(vd[faces].sum(axis=1)[:, 1]) > 1.5       # the flank faces join front and rear
-    w = S.orient_weight(SurfaceParams(), 0.0, S.median_spacing(P))
-    assert _outward(P, S.orient_faces(P, faces, sec, beside, vd, model_weight=w))[one_side].all()
-    # a weight for noise (0.5, a scanner's) lets the wrong model turn the flank's faces inward
-    assert not _outward(P, S.orient_faces(P, faces, sec, beside, vd, model_weight=0.5))[one_side].all()
-
-
-def test_orientation_weight_grows_with_the_noise_and_keeps_a_noisy_scan_outward():
-    # the cylinder scanned on a 4 mm grid with 2 mm range noise along the rays (the scanner
-    # preset's 1 mm at 2 mm, scaled), denoised: the residual scale asks for the model's weight a
-    # scanner's noise needs (about 0.5), and with it and the section's true model every face
-    # points outward; the noise-free weight leaves faces that the noise tilted turned inward
-    from bodyscan.recon.clean.denoise import denoise
-
-    R = 0.06
-    P, vd = front_rear_cylinder(R, np.arange(-0.058, 0.0581, 0.004), np.arange(0, 0.3, 0.004))
-    P = P + np.random.default_rng(0).normal(0, 0.002, len(P))[:, None] * vd
-    name = "thigh_l"
-    member = np.zeros((len(P), len(SECTIONS)), dtype=bool)
-    member[:, SECTIONS.index(name)] = True
-    spacing = S.median_spacing(P)
-    dn = denoise(P, member, spacing)
-    w = S.orient_weight(SurfaceParams(), dn.scale, spacing)
-    clean = S.orient_weight(SurfaceParams(), 0.0, spacing)
-    assert clean == SurfaceParams().orient_model_weight < 0.3 < w < 0.7
-    shape = SectionShape(name, [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
-    faces = S.section_surface(dn.points, shape, SurfaceParams(), view_dir=vd)
-    fit = BodyFit(sections={name: shape}, joints={})
-    sec = np.full(len(faces), SECTIONS.index(name), np.int8)
-    assert _outward(dn.points, S.orient_faces(dn.points, faces, sec, fit, vd, model_weight=w)).all()
-    assert not _outward(dn.points, S.orient_faces(dn.points, faces, sec, fit, vd, model_weight=clean)).all()
-
-
 def test_small_section_is_skipped_with_a_warning():
     P = np.vstack([capsule_points(n=800), [[1.0, 1.0, 1.0], [1.01, 1.0, 1.0], [1.0, 1.01, 1.0]]])
     fit = BodyFit(sections={

@@ -53,8 +53,7 @@ TWO_PI = 2 * np.pi
 
 #: The surface settings the simple baseline takes from the paper's (`recon.params.PAPER`), whatever
 #: ``proposed`` uses: no fold rule, the paper's boundary peel in 3D, faces turned by the view alone.
-SIMPLE_SURFACE = ("fold_cos", "hull_edge_factor", "hull_edge_min", "cover_max_edge", "orient_model_weight",
-                  "orient_noise_weight")
+SIMPLE_SURFACE = ("fold_cos", "hull_edge_factor", "hull_edge_min", "cover_max_edge", "orient_model_weight")
 
 #: The seam copies reach at most this many median point spacings past theta = 0 and 2*pi: enough
 #: for Delaunay to see the same neighbourhoods on both sides, few copies on dense scans.
@@ -522,16 +521,6 @@ def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
     return d / np.where(n > 0, n, 1.0)
 
 
-def orient_weight(params: SurfaceParams, noise: float, spacing: float) -> float:
-    """The model's weight in `orient_faces` for a cloud of residual noise scale ``noise`` and
-    median point spacing ``spacing`` (metres): ``params.orient_model_weight`` (noise-free: the
-    triangulation's own tilt), or ``params.orient_noise_weight`` times ``noise / spacing`` where
-    that is more (the tilt that the noise gives an edge of one spacing: a face edge-on to its
-    camera within that tilt cannot be told outward from inward by the camera)."""
-    ratio = noise / spacing if spacing > 0 else 0.0
-    return max(params.orient_model_weight, params.orient_noise_weight * ratio)
-
-
 def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
                  view_dir: np.ndarray | None = None, min_agreement: float = 0.5,
                  model_weight=0.0) -> np.ndarray:
@@ -544,8 +533,8 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     faces the side of the unit viewing direction plus w times the model's outward direction:
     the model decides where the face turns more than 1 / w times as much toward or away from it
     as toward or away from the camera (a face nearly edge-on to its camera, whose small tilt
-    toward it is the triangulation's or the noise's; `orient_weight`). ``model_weight`` is a
-    float or one per face (k,).
+    toward it is noise; ``SurfaceParams.orient_model_weight``). ``model_weight`` is a float or
+    one per face (k,).
     """
     faces = faces.copy()
     if len(faces) == 0:
@@ -856,8 +845,7 @@ def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, 
 
 def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                          params: SurfaceParams = SurfaceParams(), view_dir: np.ndarray | None = None,
-                         drop_inner: bool = True, spacing: float | None = None, extra=(),
-                         noise: float = 0.0):
+                         drop_inner: bool = True, spacing: float | None = None, extra=()):
     """Per-section surfaces, merged and oriented outward.
 
     Parameters
@@ -884,10 +872,6 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         points two of each of its faces' corners must be (`recon.surface.complete.far_charts`: a far
         part's own points; its faces on the points it joins would overlap its section's chart's,
         edges in three faces); their faces join the section's.
-    noise : float
-        Residual noise scale of ``points``, metres (`recon.clean.denoise.Denoised.scale`; 0: none
-        measured): the orientation trusts the tilt toward the camera of a triangle less, and the
-        section model more, the noisier the cloud is for its spacing (``params.orient_noise_weight``).
 
     Returns
     -------
@@ -965,7 +949,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     own = np.zeros(len(points), dtype=bool)
     for job in extra:
         own[job[4] if len(job) > 4 else job[1]] = True
-    weight = np.where(own[faces].sum(axis=1) >= 2, 0.0, orient_weight(sp, noise, spacing))
+    weight = np.where(own[faces].sum(axis=1) >= 2, 0.0, sp.orient_model_weight)
     faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=weight)
     if drop_inner and params.far_charts:
         more, more_sec = left_out_charts(points, faces, member, extra, fit, sp, spacing, view_dir, tree)
