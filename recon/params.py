@@ -539,9 +539,8 @@ class SurfaceParams:
         "help": "points the rules left out of every face are put back with triangles no longer than "
                 "this, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
-        "help": "mesh the points beyond T_d of every section (hands, feet, unfitted sections), and "
-                "those every section's chart left out, on charts of their own, joined to their "
-                "section (False: the paper)",
+        "help": "mesh the points beyond T_d of every section and those the charts left out "
+                "(hands, feet, unfitted sections) on charts of their own (False: the paper)",
         "unit": "", "range": (False, True)})
     far_link: float = field(default=4.0, metadata={
         "help": "far points nearer than this form one part (one chart)", "unit": "spacings",
