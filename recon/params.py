@@ -464,7 +464,8 @@ class SurfaceParams:
         triangles came out flipped. With weight ``w`` the model decides where the triangle turns
         more than ``1 / w`` times as much toward or away from the model's outward direction as
         toward or away from the camera. Only the fitted sections' own charts: a hand's, a foot's
-        or a far part's faces its camera alone (no fitted section is their surface). (chosen)
+        or a far part's faces its camera alone, or its chart's own column where its cameras
+        disagree (no fitted section is their surface; `recon.surface.mesh.orient_charts`). (chosen)
     """
 
     seam_overlap: float = field(default=0.6,  # paper 3.3, radians

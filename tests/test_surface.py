@@ -638,3 +638,31 @@ def test_a_far_part_faces_its_camera_not_the_nearest_section():
     n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
     area = np.linalg.norm(n, axis=1)
     assert area[n[:, 2] > 0].sum() > 0.99 * area.sum()
+
+
+def test_faces_the_cameras_disagree_on_take_their_own_charts_column_not_their_sections():
+    """The top of a foot (its chart's own column, along the foot) under its lower leg, meshed from
+    points the front and the rear camera saw in turn, so that no face's cameras agree: each face is
+    turned by the foot's column, outward (up); the lower leg's model, whose end cap points forward
+    and down there, turned them down."""
+    from scipy.spatial import Delaunay
+
+    foot = SectionShape("lower_leg_l", (0.0, 0.03, 0.04), (0.0, -0.15, 0.04), (0.045, 0.035), (1.0, 0, 0))
+    leg = SectionShape("lower_leg_l", (0.0, 0.02, 0.48), (0.0, 0.02, 0.09), (0.05, 0.05), (1.0, 0, 0))
+    x, y = np.meshgrid(np.arange(-0.04, 0.0401, 0.005), np.arange(-0.14, 0.02, 0.005))
+    x, y = x.ravel(), y.ravel()
+    P = np.column_stack([x, y, 0.04 + 0.035 * np.sqrt(1 - (x / 0.045) ** 2)])
+    F = Delaunay(P[:, :2]).simplices
+    vd = np.where((np.arange(len(P)) % 2 == 0)[:, None], [0.0, -1.0, 0.0], [0.0, 1.0, 0.0])
+    j = SECTIONS.index("lower_leg_l")
+    fit = BodyFit(sections={"lower_leg_l": leg}, joints={})
+    idx = np.arange(len(P))
+    sec = np.full(len(F), j)
+
+    def outward(faces):
+        tri = P[faces]
+        n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        return np.mean(np.einsum("ij,ij->i", n, S.model_outward(foot, tri.mean(axis=1))) > 0)
+
+    assert outward(S.orient_charts(P, F, sec, fit, [(j, idx, foot, {}, idx)], vd, 0.5)) == 1.0
+    assert outward(S.orient_faces(P, F, sec, fit, vd, model_weight=0.5)) < 0.5    # the section's model

@@ -523,7 +523,7 @@ def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
 
 def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
                  view_dir: np.ndarray | None = None, min_agreement: float = 0.5,
-                 model_weight=0.0) -> np.ndarray:
+                 model_weight: float = 0.0) -> np.ndarray:
     """Faces (k, 3) with their winding flipped where needed so that normals point outward.
 
     The outward side is the one the sensor saw: the mean viewing direction of the face's vertices
@@ -533,13 +533,11 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     faces the side of the unit viewing direction plus w times the model's outward direction:
     the model decides where the face turns more than 1 / w times as much toward or away from it
     as toward or away from the camera (a face nearly edge-on to its camera, whose small tilt
-    toward it is noise; ``SurfaceParams.orient_model_weight``). ``model_weight`` is a float or
-    one per face (k,).
+    toward it is noise; ``SurfaceParams.orient_model_weight``).
     """
     faces = faces.copy()
     if len(faces) == 0:
         return faces
-    w = np.broadcast_to(np.asarray(model_weight, dtype=float), (len(faces),))
     p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
     normal = np.cross(p1 - p0, p2 - p0)
     unclear = np.ones(len(faces), dtype=bool)
@@ -551,19 +549,19 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
             ref = np.repeat(vd[None, :], len(faces), axis=0)
         length = np.sqrt(np.einsum("ij,ij->i", ref, ref))
         unclear = length < (3 if vd.ndim == 2 else 1) * min_agreement
-        if (w > 0).any():
+        if model_weight > 0:
             ref /= np.maximum(length, 1e-300)[:, None]
     else:
         ref = np.zeros_like(normal)
     model = unclear
-    if (w > 0).any():   # the model can overturn the view only where |cos| to it is under the weight
+    if model_weight > 0:   # the model can overturn the view only where |cos| to it is under the weight
         area2 = np.einsum("ij,ij->i", normal, normal)
-        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < w ** 2 * area2)
+        model = unclear | (np.einsum("ij,ij->i", normal, ref) ** 2 < model_weight ** 2 * area2)
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(model & (face_section == j))
         if len(sel) and name in fit.sections:
             out = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
-            ref[sel] = np.where(unclear[sel, None], out, ref[sel] + w[sel, None] * out)
+            ref[sel] = np.where(unclear[sel, None], out, ref[sel] + model_weight * out)
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
     return faces
@@ -944,13 +942,7 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         if view_dir is not None:
             more, more_sec = remove_air(points, more, more_sec, view_dir, spacing, params, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
-    # the model turns faces of the fitted sections only: a hand's, a foot's or a far part's chart
-    # is not its section's surface (a foot points forward from its lower leg's axis)
-    own = np.zeros(len(points), dtype=bool)
-    for job in extra:
-        own[job[4] if len(job) > 4 else job[1]] = True
-    weight = np.where(own[faces].sum(axis=1) >= 2, 0.0, sp.orient_model_weight)
-    faces = orient_faces(points, faces, sec, fit, view_dir, model_weight=weight)
+    faces = orient_charts(points, faces, sec, fit, extra, view_dir, sp.orient_model_weight)
     if drop_inner and params.far_charts:
         more, more_sec = left_out_charts(points, faces, member, extra, fit, sp, spacing, view_dir, tree)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
@@ -1013,7 +1005,50 @@ def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, e
         more, sec = more[keep], sec[keep]
     if view_dir is not None:
         more, sec = remove_air(points, more, sec, view_dir, spacing, params, tree)
-    return orient_faces(points, more, sec, fit, view_dir), sec
+    return orient_charts(points, more, sec, fit, jobs, view_dir, params.orient_model_weight), sec
+
+
+def orient_charts(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit, extra,
+                  view_dir=None, model_weight: float = 0.0) -> np.ndarray:
+    """`orient_faces`, each face by the model of the chart it was made on.
+
+    A hand's, a foot's or a far part's chart carries its section's label, but that section's model
+    is not its surface (a foot points forward from its lower leg's axis; the foot of a lower leg
+    listed unfitted lies under its thigh's cap, whose outward direction points down there). Their
+    faces (two corners among a chart's own points) face their cameras alone, and where the cameras
+    disagree (a chord between the front and the rear view) the outward direction of the chart's
+    own column; the other faces are turned with their fitted section (``model_weight``).
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    faces : (k, 3) int
+    face_section : (k,) int
+    fit : BodyFit
+    extra : list of (int, (m,) int, SectionShape[, dict[, (m',) int]])
+        The charts beyond the fitted sections (`reconstruct_surfaces`).
+    view_dir : (n, 3) or (3,) float, optional
+    model_weight : float
+
+    Returns
+    -------
+    (k, 3) int
+        ``faces``, some of them flipped.
+    """
+    owner = np.full(len(points), -1)
+    for k, job in enumerate(extra):
+        owner[job[4] if len(job) > 4 else job[1]] = k
+    o = owner[np.asarray(faces, dtype=np.int64)] if len(faces) else np.zeros((0, 3), dtype=np.int64)
+    chart = np.where((o[:, 0] == o[:, 1]) | (o[:, 0] == o[:, 2]), o[:, 0], np.where(o[:, 1] == o[:, 2], o[:, 1], -1))
+    out = faces.copy()
+    on = chart < 0
+    out[on] = orient_faces(points, faces[on], face_section[on], fit, view_dir, model_weight=model_weight)
+    for k in np.unique(chart[~on]):
+        j, shape = extra[k][0], extra[k][2]
+        sel = chart == k
+        out[sel] = orient_faces(points, faces[sel], face_section[sel],
+                                BodyFit(sections={SECTIONS[j]: shape}, joints={}), view_dir)
+    return out
 
 
 def _chart_faces(points: np.ndarray, idx: np.ndarray, job, params: SurfaceParams, spacing: float,
