@@ -79,19 +79,9 @@ def _radii(points: np.ndarray, shape: SectionShape) -> SectionShape:
     col = points[(q[:, 2] >= 0) & (q[:, 2] <= shape.length)]
     if len(col) < MIN_POINTS:
         return shape
-    x0 = np.clip(shape.radii, 0.006, 0.3)
-    # the surface distance of ``col`` to the open column of radii ab (`SectionShape.coords`' r, the same
-    # arithmetic): the radii move neither the frame nor the distance from the axis, made once
-    x, y, _ = shape.replace(closed=(False, False)).replace(radii=x0).local(col).T
-    rho = np.sqrt(x ** 2 + y ** 2 + 0.0)
-
-    def resid(ab):
-        a, b = ab
-        s = np.sqrt((x / a) ** 2 + (y / b) ** 2 + 0.0)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            return np.where(s > 0, rho * (1.0 - 1.0 / s), -min(a, b))
-
-    fit = least_squares(resid, x0, loss="soft_l1", f_scale=0.005, bounds=(0.006, 0.3), max_nfev=30)
+    open_ = shape.replace(closed=(False, False))
+    fit = least_squares(lambda ab: open_.replace(radii=ab).coords(col)[0], np.clip(shape.radii, 0.006, 0.3),
+                        loss="soft_l1", f_scale=0.005, bounds=(0.006, 0.3), max_nfev=30)
     tip = shape.length + shape.caps[1]        # the fingertips (toes) stay where they are
     cap = min(float(fit.x.min()), 0.4 * tip)
     return shape.replace(end=shape.start + (tip - cap) * shape.axis, radii=fit.x, caps=np.array([cap, cap]))

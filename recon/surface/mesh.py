@@ -958,8 +958,8 @@ def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, e
     height as the trunk's own surface, and no rule keeps a triangle between the two layers. The
     points no face uses are grouped into connected parts and meshed like the points beyond T_d
     (`recon.surface.complete.far_charts`: each part's range images, joined to the meshed points
-    around it), under the same air rules; their faces face their cameras (the fitted section
-    nearest them is not their surface, so its outward direction does not turn them).
+    around it), under the same air rules, and turned by their own charts (`orient_charts`: the
+    fitted section nearest them is not their surface).
 
     Parameters
     ----------
@@ -1038,7 +1038,7 @@ def orient_charts(points: np.ndarray, faces: np.ndarray, face_section: np.ndarra
     owner = np.full(len(points), -1)
     for k, job in enumerate(extra):
         owner[job[4] if len(job) > 4 else job[1]] = k
-    o = owner[np.asarray(faces, dtype=np.int64)] if len(faces) else np.zeros((0, 3), dtype=np.int64)
+    o = owner[np.asarray(faces, dtype=np.int64).reshape(-1, 3)]
     chart = np.where((o[:, 0] == o[:, 1]) | (o[:, 0] == o[:, 2]), o[:, 0], np.where(o[:, 1] == o[:, 2], o[:, 1], -1))
     out = faces.copy()
     on = chart < 0
