@@ -550,8 +550,8 @@ class SurfaceParams:
         "help": "meshed points within this of a far part join its chart", "unit": "spacings",
         "range": (0.0, None)})
     far_max_edge: float = field(default=4.0, metadata={
-        "help": "longer triangles (as their camera saw them; at least hull_edge_min) are left out of "
-                "the charts of the hands, feet and far parts (0 = no limit)",
+        "help": "longer triangles (as their camera saw them; at least hull_edge_min, a hand's this "
+                "many far_hand_spacing) leave the hands', feet's and far charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     far_hand_spacing: float = field(default=0.0075, metadata={
         "help": "hands are meshed as range images on scans with a median spacing up to this, else "

@@ -409,7 +409,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
 
         sp = params.surface
         extra = extremity_charts(p, ext, fit, meshed, spacing, sp.far_join, sp.far_max_edge, tree,
-                                 spacing <= sp.far_hand_spacing) + extra
+                                 sp.far_hand_spacing) + extra
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)

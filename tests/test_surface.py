@@ -666,3 +666,32 @@ def test_faces_the_cameras_disagree_on_take_their_own_charts_column_not_their_se
 
     assert outward(S.orient_charts(P, F, sec, fit, [(j, idx, foot, {}, idx)], vd, 0.5)) == 1.0
     assert outward(S.orient_faces(P, F, sec, fit, vd, model_weight=0.5)) < 0.5    # the section's model
+
+
+def test_a_hands_range_image_does_not_span_a_hole_a_few_centimetres_wide():
+    # a part seen by the front camera on a 5 mm grid: two rows of knuckles 2 cm apart in depth, a
+    # 3.5 cm band between them the camera did not see (3.5 cm across the view, 4 cm in 3D). A
+    # hand is a few centimetres across: its chart keeps triangles up to far_max_edge spacings of
+    # the coarsest scan meshed as range images (4 x 7.5 mm), so both rows are meshed and nothing
+    # spans the band; a foot keeps hull_edge_min's 4 cm (the unseen rims along its length) and
+    # spans it
+    import dataclasses
+    from types import SimpleNamespace
+
+    from bodyscan.recon.surface.complete import extremity_charts
+
+    x, z = np.meshgrid(np.arange(0, 0.08, 0.005), np.arange(0, 0.04, 0.005))
+    near = np.column_stack([x.ravel(), np.zeros(x.size), z.ravel()])
+    far = np.column_stack([x.ravel(), np.full(x.size, 0.02), z.ravel() + 0.07])
+    P = np.concatenate([near, far])
+    vd = np.tile([0.0, -1.0, 0.0], (len(P), 1))
+    column = SectionShape("forearm_l", [0.04, 0.01, -0.02], [0.04, 0.01, 0.14], [0.05, 0.02], [1, 0, 0])
+    fit = SimpleNamespace(extremities={"hand_l": column, "foot_l": column})
+    meshed = np.zeros((len(P), len(SECTIONS)), dtype=bool)
+    for k, spans in ((0, False), (2, True)):                        # hand_l, foot_l
+        ext = np.full(len(P), k)
+        job = extremity_charts(P, ext, fit, meshed, 0.005, join=3.0, max_edge=4.0)[0]
+        f = S._chart_faces(P, job[1], job, dataclasses.replace(SurfaceParams(), **job[3]), 0.005, vd)
+        c = P[f].mean(axis=1)
+        assert ((c[:, 2] > 0.036) & (c[:, 2] < 0.069)).any() == spans
+        assert len(np.unique(f)) == len(P)                          # both rows meshed

@@ -8,7 +8,9 @@ their faces carry (a hand is scored as its forearm, a foot as its lower leg). Wi
 each is meshed as the range images its cameras took (`recon.surface.mesh.view_surface`, a height
 field per camera that cannot fold over the curled fingers or the arch), the rims between the
 images closed by its fitted column; a hand on a scan coarser than ``far_hand_spacing`` around its
-column, like a section (its range image joins the fingers across their gaps).
+column, like a section (its range image joins the fingers across their gaps). A hand's range
+images keep triangles up to ``far_max_edge`` of those spacings on a finer scan too: a hand is a
+few centimetres across, and longer triangles span its curled fingers and knuckles.
 
 `far_charts`: the points that no fitted section explains (beyond T_d of every section: the points
 of a section listed unfitted, a hand or a foot the model has none for) are grouped into connected
@@ -174,7 +176,7 @@ def _joined(tree, points: np.ndarray, idx: np.ndarray, radius: float) -> np.ndar
 
 
 def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarray, spacing: float,
-                     join: float = 3.0, max_edge: float = 4.0, tree=None, hand_view: bool = True):
+                     join: float = 3.0, max_edge: float = 4.0, tree=None, hand_spacing: float = 0.0075):
     """Charts of the hands and feet of the body model (`recon.model.EXTREMITIES`).
 
     Parameters
@@ -194,9 +196,12 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         Spacings: longer triangles are left out (as `far_charts`: a hand's or a foot's points are
         few across its features, long triangles there span fingers and toes).
     tree : scipy.spatial.cKDTree, optional
-    hand_view : bool
-        False: the hands are triangulated around their column (``far_view`` off in their
-        parameters): on a coarse scan a hand's range image bridges the gaps between its fingers.
+    hand_spacing : float
+        Metres: on scans coarser than this the hands are triangulated around their column
+        (``far_view`` off in their parameters): there a hand's range image bridges the gaps
+        between its fingers. On finer scans their range images keep triangles up to
+        ``max_edge`` of these spacings (as their camera saw them), not ``hull_edge_min``: what
+        would bridge the fingers on the coarsest scan meshed so would on a finer one too.
 
     Returns
     -------
@@ -219,8 +224,10 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         near = _joined(tree, points, idx, join * spacing)
         near = near[meshed[near, j]]
         change = {"max_edge_factor": max_edge}
-        if not hand_view and name.startswith("hand"):
+        if name.startswith("hand") and spacing > hand_spacing:
             change["far_view"] = False     # a hand on a coarse scan: around its column
+        elif name.startswith("hand") and max_edge > 0:
+            change["hull_edge_min"] = max_edge * hand_spacing
         jobs.append((j, np.union1d(idx, near), fit.extremities[name], change, idx))
     return jobs
 
