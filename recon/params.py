@@ -512,7 +512,7 @@ class SurfaceParams:
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_neighbours: int = field(default=8,  # chosen, points
         metadata={"help": "points (with itself) whose least-spread direction is a point's normal", "unit": "", "range": (3, 1000)})
-    tilt_cos: float = field(default=0.7, metadata={
+    tilt_cos: float = field(default=0.75, metadata={
         "help": "tilted covers: a long triangle whose normal has a mean |cosine| below this with the "
                 "normals estimated at its vertices is removed (0 = off)", "unit": "", "range": (0.0, 1.0)})
     tilt_min_edge: float = field(default=2.5, metadata={
