@@ -200,8 +200,8 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         Metres: on scans coarser than this the hands are triangulated around their column
         (``far_view`` off in their parameters): there a hand's range image bridges the gaps
         between its fingers. On finer scans their range images keep triangles up to
-        ``max_edge`` of these spacings (as their camera saw them), not ``hull_edge_min``: what
-        would bridge the fingers on the coarsest scan meshed so would on a finer one too.
+        ``max_edge`` of these spacings (as their camera saw them), not ``hull_edge_min``: a hand
+        is a few centimetres across, and longer triangles span its curled fingers and knuckles.
 
     Returns
     -------
@@ -224,10 +224,11 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         near = _joined(tree, points, idx, join * spacing)
         near = near[meshed[near, j]]
         change = {"max_edge_factor": max_edge}
-        if name.startswith("hand") and spacing > hand_spacing:
-            change["far_view"] = False     # a hand on a coarse scan: around its column
-        elif name.startswith("hand") and max_edge > 0:
-            change["hull_edge_min"] = max_edge * hand_spacing
+        if name.startswith("hand"):
+            if spacing > hand_spacing:
+                change["far_view"] = False     # a hand on a coarse scan: around its column
+            elif max_edge > 0:
+                change["hull_edge_min"] = max_edge * hand_spacing
         jobs.append((j, np.union1d(idx, near), fit.extremities[name], change, idx))
     return jobs
 
