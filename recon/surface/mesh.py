@@ -81,11 +81,24 @@ def median_spacing(points: np.ndarray, sample: int = 20000, seed: int = 0, tree=
     return float(np.median(d)) if len(d) else 0.0
 
 
+#: Faces measured at a time by the per-face rules (speed only: a chunk's corner coordinates, about
+#: 3 MB, are reused from one chunk to the next instead of a whole surface's fresh arrays).
+FACE_CHUNK = 32768
+
+
+def _chunks(k: int):
+    """Slices of at most `FACE_CHUNK` of ``k`` rows."""
+    return (slice(a, a + FACE_CHUNK) for a in range(0, k, FACE_CHUNK))
+
+
 def max_edge_length(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k,) longest 3D edge (metres) of each of ``faces`` (k, 3) over ``points`` (n, 3)."""
-    p = points[faces]
-    e = p - np.roll(p, -1, axis=1)
-    return np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1))
+    out = np.empty(len(faces))
+    for c in _chunks(len(faces)):
+        p = points[faces[c]]
+        e = p - p[:, [1, 2, 0]]
+        out[c] = np.einsum("ijk,ijk->ij", e, e).max(axis=1)
+    return np.sqrt(out)
 
 
 def edge_keys(faces: np.ndarray) -> np.ndarray:
@@ -122,16 +135,19 @@ def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
     if view_dir is None or len(faces) == 0 or same_side > 1:
         return longest
     vd = np.asarray(view_dir, dtype=np.float64)
-    m = vd[faces].sum(axis=1) / 3 if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3))
-    ln = np.sqrt(np.einsum("ij,ij->i", m, m))
-    one = ln >= same_side
-    if not one.any():
-        return longest
-    m = m[one] / ln[one, None]
-    p = points[faces[one]]
-    e = p - np.roll(p, -1, axis=1)
-    e = e - np.einsum("kij,kj->ki", e, m)[..., None] * m[:, None, :]
-    longest[one] = np.maximum(np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1)), longest[one] / stretch)
+    for c in _chunks(len(faces)):
+        f = faces[c]
+        m = vd[f].sum(axis=1) / 3 if vd.ndim == 2 else np.broadcast_to(vd, (len(f), 3))
+        ln = np.sqrt(np.einsum("ij,ij->i", m, m))
+        one = ln >= same_side
+        if not one.any():
+            continue
+        m = m[one] / ln[one, None]
+        p = points[f[one]]
+        e = p - p[:, [1, 2, 0]]
+        e -= np.einsum("kij,kj->ki", e, m)[..., None] * m[:, None, :]
+        out = longest[c]  # a view
+        out[one] = np.maximum(np.sqrt(np.einsum("ijk,ijk->ij", e, e).max(axis=1)), out[one] / stretch)
     return longest
 
 
@@ -503,9 +519,12 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
 
 def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k,) area of each face, square metres."""
-    p0 = points[faces[:, 0]]
-    c = np.cross(points[faces[:, 1]] - p0, points[faces[:, 2]] - p0)
-    return 0.5 * np.sqrt(np.einsum("ij,ij->i", c, c))
+    out = np.empty(len(faces))
+    for s in _chunks(len(faces)):
+        p0 = points[faces[s, 0]]
+        c = np.cross(points[faces[s, 1]] - p0, points[faces[s, 2]] - p0)
+        out[s] = np.einsum("ij,ij->i", c, c)
+    return 0.5 * np.sqrt(out)
 
 
 def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
