@@ -277,8 +277,7 @@ def chart_agreement(points: np.ndarray, faces: np.ndarray, uv: np.ndarray,
     direction : (k, 3) float
         Unit projection direction of the chart at each triangle (outward).
     """
-    p = points[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n = face_normals(points, faces)
     ln = np.sqrt(np.einsum("ij,ij->i", n, n))
     a = uv[:, 1] - uv[:, 0]
     b = uv[:, 2] - uv[:, 0]
@@ -517,14 +516,20 @@ def unique_faces(faces: np.ndarray) -> np.ndarray:
     return faces[np.sort(first)].astype(np.int64)
 
 
+def face_normals(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """(k, 3) ``(p1 - p0) x (p2 - p0)`` of each of ``faces`` (k, 3) over ``points`` (n, 3): the
+    normal by the winding, twice the area long (unnormalised)."""
+    out = np.empty((len(faces), 3))
+    for c in _chunks(len(faces)):
+        p0 = points[faces[c, 0]]
+        out[c] = np.cross(points[faces[c, 1]] - p0, points[faces[c, 2]] - p0)
+    return out
+
+
 def face_areas(points: np.ndarray, faces: np.ndarray) -> np.ndarray:
     """(k,) area of each face, square metres."""
-    out = np.empty(len(faces))
-    for s in _chunks(len(faces)):
-        p0 = points[faces[s, 0]]
-        c = np.cross(points[faces[s, 1]] - p0, points[faces[s, 2]] - p0)
-        out[s] = np.einsum("ij,ij->i", c, c)
-    return 0.5 * np.sqrt(out)
+    c = face_normals(points, faces)
+    return 0.5 * np.sqrt(np.einsum("ij,ij->i", c, c))
 
 
 def model_outward(shape: SectionShape, at: np.ndarray) -> np.ndarray:
@@ -557,8 +562,7 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     faces = faces.copy()
     if len(faces) == 0:
         return faces
-    p0, p1, p2 = points[faces[:, 0]], points[faces[:, 1]], points[faces[:, 2]]
-    normal = np.cross(p1 - p0, p2 - p0)
+    normal = face_normals(points, faces)
     unclear = np.ones(len(faces), dtype=bool)
     if view_dir is not None:
         vd = np.asarray(view_dir, dtype=float)
@@ -579,7 +583,8 @@ def orient_faces(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray
     for j, name in enumerate(SECTIONS):
         sel = np.flatnonzero(model & (face_section == j))
         if len(sel) and name in fit.sections:
-            out = model_outward(fit.sections[name], (p0[sel] + p1[sel] + p2[sel]) / 3)
+            f = faces[sel]
+            out = model_outward(fit.sections[name], (points[f[:, 0]] + points[f[:, 1]] + points[f[:, 2]]) / 3)
             ref[sel] = np.where(unclear[sel, None], out, ref[sel] + model_weight * out)
     flip = np.einsum("ij,ij->i", normal, ref) < 0
     faces[flip] = faces[flip][:, ::-1]
@@ -741,8 +746,7 @@ def view_consistency(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray
     """
     if len(faces) == 0:
         return np.zeros(0)
-    p = points[faces]
-    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    n = face_normals(points, faces)
     n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
     vd = np.asarray(view_dir, dtype=np.float64)
     d = vd[faces] if vd.ndim == 2 else np.broadcast_to(vd, (len(faces), 3, 3))
@@ -776,7 +780,8 @@ def point_normals(points: np.ndarray, idx: np.ndarray, view_dir: np.ndarray, k: 
     tree = cKDTree(points) if tree is None else tree
     k = int(min(max(k, 3), len(points)))
     _, nb = tree.query(points[idx], k=k)
-    q = points[nb] - points[nb].mean(axis=1, keepdims=True)
+    q = points[nb]
+    q -= q.mean(axis=1, keepdims=True)
     _, vec = np.linalg.eigh(np.einsum("mki,mkj->mij", q, q))
     n = vec[:, :, 0]
     vd = np.asarray(view_dir, dtype=np.float64)
@@ -816,8 +821,7 @@ def normal_agreement(points: np.ndarray, faces: np.ndarray, normals: np.ndarray)
     """
     if len(faces) == 0:
         return np.zeros(0)
-    v = points[faces]
-    n = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])
+    n = face_normals(points, faces)
     ln = np.sqrt(np.einsum("ij,ij->i", n, n))
     cos = np.abs(np.einsum("ikj,ij->ik", normals, n)).mean(axis=1)
     return np.divide(cos, ln, out=np.ones(len(faces)), where=ln > 0)
@@ -1143,10 +1147,8 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
         out_sec.append(np.full(len(f), j, dtype=np.int8))
     if not out:
         return np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8)
+    # each has a corner in no face of ``faces``: none of their vertex sets
     f, s = np.concatenate(out).astype(np.int64), np.concatenate(out_sec)
-    k_old = face_keys(np.concatenate([faces, f]))
-    new = ~np.isin(k_old[len(faces):], k_old[:len(faces)])
-    f, s = f[new], s[new]
     first = np.sort(np.unique(face_keys(f), return_index=True)[1]) if len(f) else np.zeros(0, dtype=np.int64)
     f, s = f[first], s[first]
     keep = face_areas(points, f) > 1e-12
