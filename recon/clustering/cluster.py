@@ -273,9 +273,10 @@ def _neighbors(tree, points, rows, radius, k=MAX_NEIGHBORS):
     return pos, nb[ok], d[ok]
 
 
-def _edges_of(pos, m, sel):
-    """Indices of the pairs (grouped by row, from `_neighbors`) whose row position is in ``sel``."""
-    cnt = np.bincount(pos, minlength=m)
+def _edges_of(pos, m, sel, cnt=None):
+    """Indices of the pairs (grouped by row, from `_neighbors`) whose row position is in ``sel``
+    (``cnt``: ``np.bincount(pos, minlength=m)``, if already counted)."""
+    cnt = np.bincount(pos, minlength=m) if cnt is None else cnt
     start = np.concatenate([[0], np.cumsum(cnt)[:-1]])
     c = cnt[sel]
     first = np.repeat(start[sel] - np.concatenate([[0], np.cumsum(c)[:-1]]), c)
@@ -688,10 +689,11 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
     w = w + 1e-9
     dist = np.full((m, 2), np.inf)
     local = np.full(n, -1, dtype=np.int64)
+    cnt = np.bincount(pos, minlength=m)
     for j in np.unique(np.concatenate([A, B])):
         # the front of section j runs through the points that may belong to j
         sel = np.flatnonzero((A == j) | (B == j))
-        e = _edges_of(pos, m, sel)
+        e = _edges_of(pos, m, sel, cnt)
         nbe = nb[e]
         src = nbe[(count[nbe] == 1) & member[nbe, j]]
         if len(src) == 0:
@@ -705,7 +707,7 @@ def resolve_joints(member, points, r, rows, A, B, radius, tree, widths, seam_wid
         local[rows[sel]] = np.arange(len(sel))
         local[extra] = len(sel) + np.arange(len(extra))
         size = len(sel) + len(extra)
-        indptr = np.concatenate([[0], np.cumsum(np.bincount(pos[e], minlength=m)[sel]),
+        indptr = np.concatenate([[0], np.cumsum(cnt[sel]),
                                  np.full(len(extra), len(e))])
         graph = csr_matrix((w[e], local[nbe], indptr), shape=(size, size))
         d = dijkstra(graph, directed=False, indices=np.unique(local[src]), min_only=True)[:len(sel)]
