@@ -404,9 +404,11 @@ def section_surface(points: np.ndarray, shape: SectionShape,
     if parts and params.fold_cos > -1:
         # folds (see `chart_agreement`), after the caps were built on the whole column's end loop
         allf = np.concatenate(parts)
-        folded = (np.concatenate(agree) < params.fold_cos) & (
-            max_edge_length(points, allf) > params.fold_edge_factor * spacing)
-        parts = [allf[~folded]]
+        folded = np.flatnonzero(np.concatenate(agree) < params.fold_cos)   # the long ones of these
+        folded = folded[max_edge_length(points, allf[folded]) > params.fold_edge_factor * spacing]
+        keep = np.ones(len(allf), dtype=bool)
+        keep[folded] = False
+        parts = [allf[keep]]
     faces = unique_faces(np.concatenate(parts)) if parts else np.zeros((0, 3), dtype=np.int64)
     return _trim(points, faces, view_dir, params, spacing)
 
