@@ -171,8 +171,11 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
 
 def _joined(tree, points: np.ndarray, idx: np.ndarray, radius: float) -> np.ndarray:
     """Indices of the points within ``radius`` (metres) of ``points[idx]``."""
-    near = tree.query_ball_point(points[idx], radius)
-    return np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
+    from itertools import chain
+
+    hit = np.zeros(len(points), dtype=bool)
+    hit[np.fromiter(chain.from_iterable(tree.query_ball_point(points[idx], radius)), dtype=np.int64)] = True
+    return np.flatnonzero(hit)
 
 
 def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarray, spacing: float,

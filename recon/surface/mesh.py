@@ -1136,9 +1136,9 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
         left = idx[~used[idx]]
         if len(left) == 0:
             continue
-        near = tree.query_ball_point(points[left], r)
-        near = np.unique(np.concatenate([np.asarray(a, dtype=np.int64) for a in near]))
-        sub = np.union1d(left, np.intersect1d(near, idx, assume_unique=True))
+        near = np.zeros(len(points), dtype=bool)
+        near[np.fromiter(chain.from_iterable(tree.query_ball_point(points[left], r)), dtype=np.int64)] = True
+        sub = np.union1d(left, idx[near[idx]])
         if len(sub) < 3:
             continue
         own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
