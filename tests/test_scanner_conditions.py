@@ -302,3 +302,15 @@ def test_isolated_points_are_those_with_no_other_point_within_the_gap():
     nearest = tree.query(pts, k=2)[0][:, 1]
     for gap in np.unique(nearest):  # a gap equal to a nearest distance: that point is not isolated
         assert (_isolated(tree, pts, gap) == (nearest > gap)).all()
+
+
+def test_shared_fits_are_evaluated_the_same_in_chunks(monkeypatch):
+    # `LocalFit.at` a few points at a time (chunk boundaries inside the cloud) and all at once
+    from bodyscan.recon.clean import denoise as D
+
+    p = scanned_cylinder(0.001)[0]
+    member = np.ones((len(p), 1), bool)
+    whole = denoise(p, member, PITCH, share=2.0)
+    monkeypatch.setattr(D, "AT_CHUNK", 37)
+    chunked = denoise(p, member, PITCH, share=2.0)
+    assert np.array_equal(whole.points, chunked.points) and whole.scale == chunked.scale

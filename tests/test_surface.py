@@ -695,3 +695,26 @@ def test_a_hands_range_image_does_not_span_a_hole_a_few_centimetres_wide():
         c = P[f].mean(axis=1)
         assert ((c[:, 2] > 0.036) & (c[:, 2] < 0.069)).any() == spans
         assert len(np.unique(f)) == len(P)                          # both rows meshed
+
+
+def test_per_face_measures_are_the_same_in_chunks(monkeypatch):
+    # edge lengths, areas and normals of random triangles, measured a few faces at a time (the
+    # chunks' boundaries inside the list) and directly
+    rng = np.random.default_rng(3)
+    P = rng.normal(size=(40, 3))
+    f = rng.integers(0, len(P), size=(23, 3))
+    vd = rng.normal(size=(len(P), 3)) * [0.1, 0.1, 1.0]
+    vd /= np.linalg.norm(vd, axis=1)[:, None]
+    whole = [S.max_edge_length(P, f), S.face_areas(P, f), S.face_normals(P, f),
+             S.view_edge_length(P, f, vd, 0.5, 2.0)]
+    monkeypatch.setattr(S, "FACE_CHUNK", 5)
+    chunked = [S.max_edge_length(P, f), S.face_areas(P, f), S.face_normals(P, f),
+               S.view_edge_length(P, f, vd, 0.5, 2.0)]
+    for a, b in zip(whole, chunked):
+        assert np.array_equal(a, b)
+    e = P[f] - P[f][:, [1, 2, 0]]
+    assert np.allclose(chunked[0], np.linalg.norm(e, axis=2).max(axis=1))
+    n = np.cross(P[f[:, 1]] - P[f[:, 0]], P[f[:, 2]] - P[f[:, 0]])
+    assert np.allclose(chunked[2], n)
+    assert np.allclose(chunked[1], 0.5 * np.linalg.norm(n, axis=1))
+    assert (chunked[3] <= chunked[0] + 1e-12).all() and (chunked[3] >= chunked[0] / 2 - 1e-12).all()
