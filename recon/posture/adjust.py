@@ -343,6 +343,7 @@ def _turn_lower_legs(points, secs: dict, new: dict, params: FitParams) -> dict:
         ``secs`` with those lower legs turned.
     """
     out = dict(secs)
+    covers = None   # `section_cover` of ``out``, measured once for both legs while ``out`` stays
     for name in ("lower_leg_l", "lower_leg_r"):
         if name not in out or name not in new:
             continue
@@ -350,12 +351,15 @@ def _turn_lower_legs(points, secs: dict, new: dict, params: FitParams) -> dict:
         to_end = new[name].end - knee
         if to_end @ q.axis <= 0:
             continue
-        c = section_cover(points, out, params.fit_coverage_distance)[name]
+        if covers is None:
+            covers = section_cover(points, out, params.fit_coverage_distance)
+        c = covers[name]
         if c >= params.fit_min_section_cover:
             continue
         turned = _keep_dir(q, to_end, knee, q.length)
         if section_cover(points, {**out, name: turned}, params.fit_coverage_distance)[name] > c:
             out[name] = turned
+            covers = None
     return out
 
 
