@@ -64,7 +64,9 @@ def tangent_dir(d0: np.ndarray, a: float, b: float, basis=None) -> np.ndarray:
     ``perp(d0)`` and ``d0 x perp(d0)``."""
     u, w = basis if basis is not None else (perp(d0), cross(d0, perp(d0)))
     t = np.hypot(a, b)
-    return unit(d0 * np.cos(t) + (u * a + w * b) * np.sinc(t / np.pi))
+    y = np.pi * (t / np.pi)   # sin(t) / t as np.sinc(t / pi) computes it (eps at 0), without its overhead
+    y = y if y != 0 else np.finfo(np.float64).eps
+    return unit(d0 * np.cos(t) + (u * a + w * b) * (np.sin(y) / y))
 
 
 def frames_from_dirs(d: np.ndarray) -> np.ndarray:

@@ -343,6 +343,7 @@ def _turn_lower_legs(points, secs: dict, new: dict, params: FitParams) -> dict:
         ``secs`` with those lower legs turned.
     """
     out = dict(secs)
+    covers = None   # `section_cover` of ``out``, measured once for both legs while ``out`` stays
     for name in ("lower_leg_l", "lower_leg_r"):
         if name not in out or name not in new:
             continue
@@ -350,12 +351,15 @@ def _turn_lower_legs(points, secs: dict, new: dict, params: FitParams) -> dict:
         to_end = new[name].end - knee
         if to_end @ q.axis <= 0:
             continue
-        c = section_cover(points, out, params.fit_coverage_distance)[name]
+        if covers is None:
+            covers = section_cover(points, out, params.fit_coverage_distance)
+        c = covers[name]
         if c >= params.fit_min_section_cover:
             continue
         turned = _keep_dir(q, to_end, knee, q.length)
         if section_cover(points, {**out, name: turned}, params.fit_coverage_distance)[name] > c:
             out[name] = turned
+            covers = None
     return out
 
 
@@ -563,7 +567,9 @@ def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody
         return None
     free = X[np.min(np.stack([o.distance(X) for o in others], 1), 1) > 0.5 * params.fit_near_distance]
     dirs = _SEARCH_DIRS[_SEARCH_DIRS @ p.axis >= np.cos(np.radians(params.match_max_bend))]
-    score = limb_columns(free, e, dirs, L, r)[0].sum(1).astype(float)
+    score = np.zeros(len(dirs))
+    for rows, surf, *_ in limb_columns(free, e, dirs, L, r):
+        score[rows] = surf.sum(1)
     score = score - 0.25 * score.max() * axis_samples_inside(others, e, dirs, L, 0.0, 4)
     start = q.replace(start=e, end=e + L * dirs[int(np.argmax(score))])
     names, k = _assign(points, {**secs, dist: start}, params.fit_near_distance)
@@ -577,15 +583,23 @@ def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody
 
 def limb_columns(X, e, dirs, L, r):
     """Limb columns from ``e`` (3,) along ``dirs`` (k, 3), ``L`` long, radius ``r``, against the
-    points ``X`` (m, 3): (k, m) whether each point is on the surface (within 0.6 r of it, between
-    0.15 L and L), (k, m) whether it is in the core (nearer the axis than 0.4 r there), and (k, m)
-    its position along and distance from the axis. Used by the forearm re-search and by
-    `recon.posture.reach`."""
+    points ``X`` (m, 3), a block of directions at a time: yields ``(rows, surf, core, t, rho)``,
+    ``rows`` a slice of ``dirs`` and, for those b directions, (b, m) whether each point is on the
+    surface (within 0.6 r of it, between 0.15 L and L), (b, m) whether it is in the core (nearer
+    the axis than 0.4 r there), and (b, m) its position along and distance from the axis. In
+    blocks because the whole (k, m) arrays (800 directions by thousands of points) cost far more
+    in memory traffic than in arithmetic (the same numbers: one product ``dirs @ rel.T``). Used by
+    the forearm re-search and by `recon.posture.reach`."""
     rel = X - e
-    t = dirs @ rel.T
-    rho = np.sqrt(np.maximum((rel ** 2).sum(1)[None, :] - t ** 2, 0.0))
-    along = (t > 0.15 * L) & (t < L)
-    return along & (np.abs(rho - r) < 0.6 * r), along & (rho < 0.4 * r), t, rho
+    t_all = dirs @ rel.T
+    r2 = (rel ** 2).sum(1)[None, :]
+    step = max(1, 2 ** 16 // max(1, len(X)))
+    for i in range(0, len(dirs), step):
+        rows = slice(i, i + step)
+        t = t_all[rows]
+        rho = np.sqrt(np.maximum(r2 - t ** 2, 0.0))
+        along = (t > 0.15 * L) & (t < L)
+        yield rows, along & (np.abs(rho - r) < 0.6 * r), along & (rho < 0.4 * r), t, rho
 
 
 def axis_samples_inside(others, e, dirs, L: float, depth: float, n: int) -> np.ndarray:

@@ -46,9 +46,9 @@ class Scorer:
         shp = pts.shape[:-1]
         idx = np.rint(self.vol.index(pts.reshape(-1, 3))).astype(np.int64)
         ok = np.all((idx >= 0) & (idx < np.array(self.vol.shape)), axis=1)
-        idx = np.where(ok[:, None], idx, 0)
-        near = self.near[idx[:, 0], idx[:, 1], idx[:, 2]] & ok
-        taken = self.taken[idx[:, 0], idx[:, 1], idx[:, 2]] & ok
+        flat = np.ravel_multi_index(idx.T, self.vol.shape, mode="clip")   # outside: any voxel, masked
+        near = np.take(self.near, flat) & ok
+        taken = np.take(self.taken, flat) & ok
         return near.reshape(shp), taken.reshape(shp)
 
     def lookup(self, pts: np.ndarray) -> np.ndarray:
@@ -121,7 +121,7 @@ def _shell_score(scorer: Scorer, start, frames, length, radii, avoid=None) -> np
         fold = np.zeros(near.shape, bool)
         if avoid is not None:
             root, d, L, r = avoid
-            h = np.clip((pts - root) @ d, 0.0, L)
+            h = np.minimum(np.maximum((pts - root) @ d, 0.0), L)
             fold = np.linalg.norm(pts - root - h[..., None] * d, axis=-1) < r
         out.append(near & ~taken & ~fold if tmpl is _SHELL_SURF else near | fold)
     surf = out[0].reshape(out[0].shape[:-1] + (3, -1)).any(axis=-2)
@@ -270,7 +270,7 @@ def _search_chain(scorer, root, body, prox, dist, params, dirs, outward, R=None,
     def folded_back(pts, w, d1):
         # distal samples inside the proximal column weigh as claimed: no folding back over the same limb
         rel = pts - root
-        h = np.clip(rel @ d1, 0.0, L1)
+        h = np.minimum(np.maximum(rel @ d1, 0.0), L1)   # np.clip, without its overhead
         off = rel - h[..., None] * d1
         off *= off   # the squared distance from the axis summed as np.linalg.norm does: ((x + y) + z)
         inside = np.sqrt(off[..., 0] + off[..., 1] + off[..., 2]) < r1[0] + r2[0]

@@ -201,11 +201,14 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
     the upper arm, few in its core, not into another section), forearm directions ``d2_of(d1)`` (j, 3);
     ``dims`` (upper-arm length, forearm length, their radii), m. Returns (score, d1, d2) or None."""
     Lu, Lf, ru, rf = dims
-    surf_u, core_u, t_u, rho_u = limb_columns(X, s, d1s, Lu, ru)
-    bins_u = _bins_seen(surf_u, t_u / Lu)
+    surf_u, core_u, own_u = (np.zeros((len(d1s), len(X)), bool) for _ in range(3))
+    bins_u, halo = np.zeros(len(d1s), np.int64), np.zeros(len(d1s), np.int64)
+    for rows, surf, core, t, rho in limb_columns(X, s, d1s, Lu, ru):
+        surf_u[rows], core_u[rows] = surf, core
+        bins_u[rows] = _bins_seen(surf, t / Lu)
+        own_u[rows] = (t > -ru) & (t < Lu + ru) & (rho < 1.6 * ru)
+        halo[rows] = ((t > 0.15 * Lu) & (t < Lu) & (rho > 1.6 * ru) & (rho < 3 * ru)).sum(1)
     n_u = surf_u.sum(1)
-    own_u = (t_u > -ru) & (t_u < Lu + ru) & (rho_u < 1.6 * ru)
-    halo = ((t_u > 0.15 * Lu) & (t_u < Lu) & (rho_u > 1.6 * ru) & (rho_u < 3 * ru)).sum(1)
     seen = (bins_u >= params.reach_min_upper_bins) & (core_u.sum(1) <= params.reach_max_core_fraction * n_u) \
         & (halo <= params.reach_max_halo_fraction * n_u)
     seen[seen] = axis_samples_inside(others, s, d1s[seen], Lu, 0.5 * ru, 7) == 0
@@ -218,23 +221,27 @@ def _best_chain(X, s, d1s, d2_of, dims, others, params: FitParams, keep: int):
         d2s = d2_of(d1)
         if not len(d2s):
             continue
-        surf_f, core_f, t, rho = limb_columns(X, e, d2s, Lf, rf)
-        hand = (t > (1 - params.reach_hand_fraction) * Lf) & (t < Lf + rf) & (rho < 1.6 * rf)
-        beyond = ((t >= Lf + rf) & (t < Lf + 4 * rf) & (rho < 1.6 * rf)).sum(1)
-        # the forearm's own points: not on or in the upper arm's column (a forearm folded back onto it)
-        mine = ~own_u[i][None]
-        hand, surf_f, core_f = hand & mine, surf_f & mine, core_f & mine
-        n_hand = hand.sum(1)
-        n_surf = (surf_f | surf_u[i][None] | hand).sum(1)
-        n_core = (core_f | core_u[i][None]).sum(1)
-        halo_f = ((t > 0.15 * Lf) & (t < Lf + rf) & (rho > 1.6 * rf) & (rho < 3 * rf) & mine).sum(1)
+        # per forearm direction: points at the hand end, beyond it, on its surface or the upper
+        # arm's, in either core, in its halo; and the fifths of its length holding points. The
+        # forearm's own points are not on or in the upper arm's column (a forearm folded back onto it)
+        mine = ~own_u[i]
+        n_hand, beyond, n_surf, n_core, halo_f, bins_f = (np.zeros(len(d2s), np.int64) for _ in range(6))
+        for rows, surf, core, t, rho in limb_columns(X, e, d2s, Lf, rf):
+            hand = (t > (1 - params.reach_hand_fraction) * Lf) & (t < Lf + rf) & (rho < 1.6 * rf) & mine
+            on = (surf & mine) | hand
+            n_hand[rows] = hand.sum(1)
+            beyond[rows] = ((t >= Lf + rf) & (t < Lf + 4 * rf) & (rho < 1.6 * rf)).sum(1)
+            n_surf[rows] = (on | surf_u[i]).sum(1)
+            n_core[rows] = ((core & mine) | core_u[i]).sum(1)
+            halo_f[rows] = ((t > 0.15 * Lf) & (t < Lf + rf) & (rho > 1.6 * rf) & (rho < 3 * rf) & mine).sum(1)
+            bins_f[rows] = _bins_seen(on, t / Lf)
         ok = (n_hand >= params.reach_min_hand_points) & (halo_f + halo[i] <= params.reach_max_halo_fraction * n_surf) & (beyond <= params.reach_max_core_fraction * n_hand) \
             & (n_surf >= params.fit_min_points) & (n_core <= params.reach_max_core_fraction * n_surf)
         if not ok.any():
             continue
         ok[ok] = axis_samples_inside(others, e, d2s[ok], Lf, 0.5 * rf, 7) == 0
         # an arm's seen points run along its whole length: the most fifths holding points first
-        score = np.where(ok, (bins_u[i] + _bins_seen(surf_f | hand, t / Lf)) * (len(X) + 1) + n_surf, -1)
+        score = np.where(ok, (bins_u[i] + bins_f) * (len(X) + 1) + n_surf, -1)
         j = int(np.argmax(score))
         if score[j] >= 0 and (best is None or score[j] > best[0]):
             best = (int(score[j]), d1, d2s[j])
