@@ -64,6 +64,8 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
     from bodyscan.simulator.config import preset
     from bodyscan.simulator.scan import scan
 
+    from bodyscan.recon import ReconError
+
     from .peers import available_peers, reconstruct_peer
 
     peers = [m for m in ("poisson", "bpa") if m in available_peers()]
@@ -75,9 +77,15 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
             body = load_body(name)
             s = scan(body, preset("paper", resolution=res))
             t = {"proposed": np.inf, **{m: np.inf for m in peers}}
+            refused = ""
             for _ in range(repeat):
-                times, _ = time_scan(s.points, s.view_dir, "proposed", None, 1)
-                t["proposed"] = min(t["proposed"], times["total"])
+                start = time.perf_counter()
+                try:
+                    times, _ = time_scan(s.points, s.view_dir, "proposed", None, 1)
+                    took = times["total"]
+                except ReconError as e:   # a refused fit is timed too: the user waited for it
+                    took, refused = time.perf_counter() - start, f" (refused: {e})"
+                t["proposed"] = min(t["proposed"], took)
                 for m in peers:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
@@ -85,12 +93,15 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
             rows[res].append(t)
             print(f"{res * 1000:4.0f} mm {body.name:>24s} {len(s.points):7d} points | "
                   + " ".join(f"{m} {v:6.2f} s" for m, v in t.items()) + " | "
-                  + " ".join(f"/{m} {t['proposed'] / t[m]:5.2f}" for m in peers), flush=True)
+                  + " ".join(f"/{m} {t['proposed'] / t[m]:5.2f}" for m in peers) + refused, flush=True)
+            t["refused"] = bool(refused)
     for res, rs in rows.items():
         prop = np.array([r["proposed"] for r in rs])
         ratios = " ".join(f"proposed/{m} median {np.median([r['proposed'] / r[m] for r in rs]):.2f}x"
                           for m in peers)
-        print(f"SUMMARY {res * 1000:.0f} mm, {len(rs)} clouds: proposed median {np.median(prop):.2f} s, "
+        n_refused = sum(r["refused"] for r in rs)
+        print(f"SUMMARY {res * 1000:.0f} mm, {len(rs)} clouds ({n_refused} refused, timed until refused): "
+              f"proposed median {np.median(prop):.2f} s, "
               f"max {prop.max():.2f} s = {prop.max() / np.median(prop):.2f}x the median | {ratios}")
 
 

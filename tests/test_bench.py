@@ -258,3 +258,20 @@ def test_the_command_runs_blas_on_one_thread_unless_the_user_chose(user):
             "print(os.environ.get('OPENBLAS_NUM_THREADS'), 'numpy' in sys.modules)")
     out = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, check=True)
     assert out.stdout.split()[-2:] == [user or "1", "True"]   # set before numpy was imported
+
+
+def test_perf_recon_versus_times_a_refused_fit_and_goes_on(monkeypatch, capsys):
+    # a cloud whose posture the fit refuses is timed until refused and reported, not a crash
+    from bodyscan.benchmarks import peers, perf_recon
+    from bodyscan.recon import ReconError
+
+    def refuse(*args, **kwargs):
+        raise ReconError("the cloud does not look like a human body")
+
+    monkeypatch.setattr(perf_recon, "time_scan", refuse)
+    monkeypatch.setattr(peers, "available_peers", lambda: ["poisson", "bpa"])
+    monkeypatch.setattr(peers, "reconstruct_peer", lambda m, p, v: (None, None, {"total": 1.0}))
+    perf_recon.versus(["standing", "squat"], [0.02])
+    out = capsys.readouterr().out
+    assert out.count("(refused: the cloud does not look like a human body)") == 2
+    assert "2 clouds (2 refused, timed until refused)" in out
