@@ -648,7 +648,8 @@ class CleanParams:
                 "error from the measured noise is at most this many spacings (0 = off)",
         "unit": "", "range": (0.0, None)})
     denoise_reach: float = field(default=0.012, metadata={
-        "help": "widened denoising fits (see denoise_error) take their points within this distance",
+        "help": "widened denoising fits (see denoise_error), and every fit of a hand's points, "
+                "take their points within this distance",
         "unit": "m", "range": (0.0, None)})
     denoise_clamp: float = field(default=3.0, metadata={
         "help": "no point moves farther than this many robust scales (outlier_z where the noise "

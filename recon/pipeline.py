@@ -415,18 +415,24 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     rejected = np.zeros(len(p), dtype=bool)
     if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.clean.denoise)
         from .clean.denoise import denoise
+        from .model import EXTREMITIES
 
         t0 = time.perf_counter()
         c = params.clean
-        # hands, feet (labelled as their section) and far parts are denoised with their sections;
-        # the points of a far part in no section (a limb the fit missed) with that part's own points
+        # feet (labelled as their section) and far parts are denoised with their sections; the
+        # points of a far part in no section (a limb the fit missed) with that part's own points;
+        # a hand with its own points, in fits within denoise_reach: its surface turns within a
+        # finger's width, which a section's wider fits (20 mm) would take for noise
         groups = member | meshed
         parts = np.zeros((len(p), len(extra)), dtype=bool)
         for j, e in enumerate(extra):   # (section, points, chart, changes, own points)
             parts[e[4] if len(e) > 4 else e[1], j] = True
         parts &= ~groups.any(axis=1)[:, None]
-        dn = denoise(p, np.hstack([groups, parts]), spacing, c.denoise_neighbours, c.denoise_clamp,
-                     c.outlier_z or np.inf, c.outlier_floor, c.outlier_isolation, c.denoise_radius,
+        hands = ext[:, None] == np.array([i for i, name in enumerate(EXTREMITIES) if name.startswith("hand")])
+        groups &= ~hands.any(axis=1)[:, None]
+        radius = [c.denoise_radius] * (groups.shape[1] + parts.shape[1]) + [c.denoise_reach] * hands.shape[1]
+        dn = denoise(p, np.hstack([groups, parts, hands]), spacing, c.denoise_neighbours, c.denoise_clamp,
+                     c.outlier_z or np.inf, c.outlier_floor, c.outlier_isolation, radius,
                      params.surface.workers, c.denoise_share, c.denoise_error, c.denoise_reach)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]

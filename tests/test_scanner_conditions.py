@@ -72,6 +72,26 @@ def test_each_section_is_fitted_on_its_own_points():
     assert np.sqrt(np.mean(err ** 2)) < 0.4 * 0.001
 
 
+def test_a_finger_is_denoised_within_its_own_width():
+    # two finger-thin cylinders (8 mm radius) at a 5 mm pitch: a section's fits (40 points within
+    # 20 mm, shared over 3-spacing cubes) span a finger's whole width and take its turn for noise
+    # (worse than the noise itself); each section's own radius (a hand's: the 12 mm reach) keeps
+    # its points near the true surface
+    sigma, radius = 0.001, 0.008
+    p, vd, head, true = scanned_cylinder(sigma, radius=radius, height=0.08)
+    q = p + [0.05, 0, 0]
+    both = np.concatenate([p, q])
+    member = np.zeros((len(both), 2), bool)
+    member[:len(p), 0] = member[len(p):, 1] = True
+    d = denoise(both, member, PITCH, radius=[0.02, 0.012])
+    inner = (true[:, 2] > 0.015) & (true[:, 2] < 0.065)
+    wide = np.sqrt(np.mean(radial_error(d.points[:len(p)][inner], radius) ** 2))
+    small = np.sqrt(np.mean(radial_error(d.points[len(p):][inner] - [0.05, 0, 0], radius) ** 2))
+    raw = np.sqrt(np.mean(radial_error(p[inner], radius) ** 2))
+    assert wide > raw > 0.5 * sigma
+    assert small < 0.5 * sigma     # 0.4 sigma (the wide fits: 1.6 sigma)
+
+
 def test_planted_outliers_are_removed():
     p, vd, head, true = scanned_cylinder(0.001)
     rng = np.random.default_rng(1)

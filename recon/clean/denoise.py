@@ -390,8 +390,9 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         Median point spacing, metres.
     neighbours : int
         Points of each fit at most (the point itself included).
-    radius : float
-        Points of each fit within this distance, metres, but at least `MIN_FIT` (see `local_fits`).
+    radius : float or (s,) float
+        Points of each fit within this distance, metres, but at least `MIN_FIT` (see `local_fits`);
+        for all sections or per section.
     clamp : float
         No point moves farther than this many robust scales, in the sections whose fits keep
         ``neighbours`` points: their residuals are the fits' own error as much as noise (on a
@@ -430,8 +431,11 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     resid = np.zeros(n)
     alone = np.ones(n, dtype=bool)
 
+    radii = np.broadcast_to(np.asarray(radius, dtype=float), member.shape[1:])
+
     def section(j):
         idx = np.flatnonzero(member[:, j])
+        radius = float(radii[j])
         k = int(min(neighbours, len(idx)))
         if k < 10:
             return None
