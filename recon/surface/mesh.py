@@ -1126,6 +1126,8 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
     """
     from scipy.spatial import cKDTree
 
+    from .complete import _joined
+
     used = np.zeros(len(points), dtype=bool)
     used[np.asarray(faces, dtype=np.int64).ravel()] = True
     tree = cKDTree(points) if tree is None else tree
@@ -1136,9 +1138,7 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
         left = idx[~used[idx]]
         if len(left) == 0:
             continue
-        near = np.zeros(len(points), dtype=bool)
-        near[np.fromiter(chain.from_iterable(tree.query_ball_point(points[left], r)), dtype=np.int64)] = True
-        sub = np.union1d(left, idx[near[idx]])
+        sub = np.union1d(left, np.intersect1d(_joined(tree, points, left, r), idx))
         if len(sub) < 3:
             continue
         own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
