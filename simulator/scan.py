@@ -67,7 +67,10 @@ class Scan:
     meta : dict
         ``config`` (dict), ``seed``, ``body``, ``source``, ``version``, ``heads`` (names),
         ``points_per_head``, ``scanner_center`` (3,), ``rays`` (rays cast for this scan; fewer when
-        a `Scanner` reuses camera rays). Nothing time-dependent: same inputs, same file.
+        a `Scanner` reuses camera rays); with a misalignment, the ground truth of each head's:
+        ``misalign_rotation`` (h, 3, 3) and ``misalign_translation`` (h, 3), metres (a point ``p``
+        measured as ``R (p - scanner_center) + scanner_center + t``). Nothing time-dependent:
+        same inputs, same file.
     """
 
     points: np.ndarray
@@ -358,8 +361,8 @@ class Scanner:
         result = Scan(np.empty((n, 3)), np.empty(n, np.int16), np.empty((n, 3), np.float32),
                       np.empty(n, np.int64), np.empty(n, np.int8), np.empty((n, 3), np.float32))
         ends = np.cumsum(counts)
-        for h, ((rays, idx), end) in enumerate(zip(heads, ends)):
-            self._measure(h, rays, idx, config, center, result, slice(end - len(idx), end))
+        planted = [self._measure(h, rays, idx, config, center, result, slice(end - len(idx), end))
+                   for h, ((rays, idx), end) in enumerate(zip(heads, ends))]
         result.meta = {
             "format": 1,
             "version": _version(),
@@ -372,10 +375,15 @@ class Scanner:
             "scanner_center": [float(c) for c in center],
             "rays": int(self.caster.n_rays - rays0),
         }
+        if config.misalign_deg > 0 or config.misalign_mm > 0:
+            result.meta["misalign_rotation"] = [r.tolist() for r, _ in planted]
+            result.meta["misalign_translation"] = [t.tolist() for _, t in planted]
         return result
 
     def _measure(self, h, rays, idx, config, center, out, rows):
-        """Write head ``h``'s measured points (camera hits ``idx``) into ``out[rows]``, with imperfections."""
+        """Write head ``h``'s measured points (camera hits ``idx``) into ``out[rows]``, with imperfections.
+        Returns the head's planted misalignment ``(rotation (3, 3), translation (3,))``, the points
+        moved as ``rotation @ (p - center) + center + translation`` (identity without one)."""
         m = len(idx)
         points = out.points[rows]
         np.take(rays.points, idx, axis=0, out=points, mode="clip")
@@ -407,6 +415,8 @@ class Scanner:
             rot = _rotation(axis, math.radians(config.misalign_deg))
             points[:] = (points - center) @ rot.T + center + shift
             view[:] = view @ rot.T.astype(np.float32)
+            return rot, shift
+        return np.eye(3), np.zeros(3)
 
 
 def scan(body, config: ScannerConfig | None = None, *, seed: int | None = None) -> Scan:

@@ -297,7 +297,7 @@ def test_cached_scanner_matches_fresh_scans(sphere):
         assert cached.points.tobytes() == fresh.points.tobytes()
 
 
-def test_noise_outliers_and_misalignment_statistics(sphere):
+def test_noise_outliers_and_misalignment_statistics(sphere, tmp_path):
     scanner = Scanner(sphere)
     base = preset("paper", resolution=0.005)
     clean = scanner.scan(base)
@@ -332,7 +332,13 @@ def test_noise_outliers_and_misalignment_statistics(sphere):
         view = clean.view_dir[clean.head == h] @ rot.T.astype(np.float32)
         assert np.abs(view - mis.view_dir[mis.head == h]).max() < 1e-5
         rotations.append(rot)
+        # the ground truth it records is that motion
+        assert np.abs(np.array(mis.meta["misalign_rotation"][h]) - rot).max() < 1e-6
+        assert np.abs(np.array(mis.meta["misalign_translation"][h]) - shift).max() < 1e-9
     assert not np.allclose(rotations[0], rotations[1])
+    assert "misalign_rotation" not in clean.meta
+    back = read_scan(write_cloud(mis, tmp_path / "mis.ply"))
+    assert np.array(back.meta["misalign_rotation"]) == pytest.approx(np.array(mis.meta["misalign_rotation"]), abs=1e-12)
     assert np.array_equal(mis.gt_normal, clean.gt_normal)
 
 
