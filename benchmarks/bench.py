@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from . import BenchError
-from .metrics import SECTIONS, GroundTruth, MetricParams, score_mesh
+from .metrics import SECTIONS, GroundTruth, MetricParams, head_misregistration, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
 #: Methods of `recon` (scored with their section labels and joints).
@@ -209,7 +209,38 @@ def scan_columns(scan) -> dict:
     if "laser_angle_deg" in cfg:
         out["k"] = float(cfg["laser_angle_deg"]) / 15.0
     out["n_points"] = int(len(scan.points))
+    planted = _planted_misalignment(scan)
+    if planted is not None:
+        off = head_misregistration(*planted)
+        out["misregistration_deg"], out["misregistration_mm"] = off["deg"], off["mm"]
     return out
+
+
+def _planted_misalignment(scan):
+    """``(rotation (h, 3, 3), translation (h, 3), at (3,))``: each head's planted misalignment as
+    ``p -> R p + t`` and the body's centre (the middle of the scan's bounding box), from the
+    scan's metadata; None for a scan without one."""
+    meta = getattr(scan, "meta", None) or {}
+    if "misalign_rotation" not in meta:
+        return None
+    r = np.asarray(meta["misalign_rotation"], dtype=float).reshape(-1, 3, 3)
+    c = np.asarray(meta["scanner_center"], dtype=float)
+    t = np.asarray(meta["misalign_translation"], dtype=float).reshape(-1, 3) + c - r @ c
+    p = np.asarray(scan.points)
+    return r, t, (p.min(axis=0) + p.max(axis=0)) / 2
+
+
+def registration_error(scan, registration) -> dict:
+    """``registration_error_deg``, ``registration_error_mm``: the largest offset left between two
+    heads (`metrics.head_misregistration`) once ``registration`` (`recon.clean.register.Registration`)
+    corrected the scan's planted misalignment; empty without either."""
+    planted = _planted_misalignment(scan)
+    if planted is None or registration is None or len(registration.rotation) != len(planted[0]):
+        return {}
+    r, t, at = planted
+    q, u, c = registration.rotation, registration.translation, registration.center
+    off = head_misregistration(q @ r, np.einsum("hij,hj->hi", q, t - c) + c + u, at)
+    return {"registration_error_deg": off["deg"], "registration_error_mm": off["mm"]}
 
 
 def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParams | None = None,
@@ -282,6 +313,7 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
             row["moved_max_mm"] = float(1000 * rec.moved[used].max()) if used.any() else 0.0
         if rec.registration is not None and len(rec.registration.rotation) >= 2:
             row["registration_deg"], row["registration_mm"] = rec.registration.offset(0, 1)
+            row.update(registration_error(scan, rec.registration))
         row.update({f"recon.{k}": (json.dumps(v) if isinstance(v, (tuple, list, dict)) else v)
                     for k, v in rp.to_dict().items()})
     elif m.kind == "peer":

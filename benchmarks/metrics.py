@@ -761,6 +761,37 @@ def joint_errors(joints: dict, true_joints: dict) -> dict:
             "joint_error_worst": names[int(err.argmax())]}
 
 
+def head_misregistration(rotation, translation, at) -> dict:
+    """The largest rigid offset between two scanner heads, for heads whose points were moved
+    ``p -> rotation[h] @ p + translation[h]`` (h heads; a misalignment, after a correction or not).
+
+    Only the heads' relative motion counts: moving every head alike moves the whole body, which no
+    scan can see.
+
+    Parameters
+    ----------
+    rotation : (h, 3, 3) float
+    translation : (h, 3) float, metres
+    at : (3,) float
+        Where the translations are measured (the body's centre), metres.
+
+    Returns
+    -------
+    dict
+        ``deg``: the largest rotation angle between two heads, degrees; ``mm``: the largest
+        distance between the positions two heads give the point ``at``, millimetres (NaN for
+        fewer than two heads).
+    """
+    r = np.asarray(rotation, dtype=float).reshape(-1, 3, 3)
+    where = r @ np.asarray(at, dtype=float) + np.asarray(translation, dtype=float).reshape(-1, 3)
+    if len(r) < 2:
+        return {"deg": float("nan"), "mm": float("nan")}
+    a, b = np.triu_indices(len(r), k=1)
+    cos = (np.einsum("pij,pij->p", r[a], r[b]) - 1) / 2   # trace(Ra^T Rb)
+    return {"deg": float(np.degrees(np.arccos(np.clip(cos, -1, 1))).max()),
+            "mm": float(1000 * np.linalg.norm(where[b] - where[a], axis=1).max())}
+
+
 def is_watertight(faces) -> bool:
     """Whether the mesh ``faces`` (F, 3) is closed and consistently wound: every edge is used by
     exactly two faces, once in each direction (an edge-manifold without boundary)."""

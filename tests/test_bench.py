@@ -9,7 +9,7 @@ import pytest
 import trimesh
 
 from bodyscan.benchmarks import BenchError
-from bodyscan.benchmarks.bench import METHODS, BenchConfig, evaluate, run_bench, score
+from bodyscan.benchmarks.bench import METHODS, BenchConfig, evaluate, registration_error, run_bench, score, scan_columns
 from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
 from bodyscan.poses.body import load_body, save_body
@@ -275,3 +275,31 @@ def test_perf_recon_versus_times_a_refused_fit_and_goes_on(monkeypatch, capsys):
     out = capsys.readouterr().out
     assert out.count("(refused: the cloud does not look like a human body)") == 2
     assert "2 clouds (2 refused, timed until refused)" in out
+
+
+def test_registration_error_is_what_a_correction_leaves_of_the_planted_misalignment():
+    from bodyscan import simulator
+    from bodyscan.recon.clean.register import Registration
+
+    body = load_body("standing")
+    scan = simulator.scan(body, simulator.preset("paper", misalign_deg=0.5, misalign_mm=2.0), seed=0)
+    planted = scan_columns(scan)
+    assert planted["misregistration_deg"] > 0.1 and planted["misregistration_mm"] > 0.5
+    assert "misregistration_deg" not in scan_columns(simulator.scan(body, simulator.preset("paper"), seed=0))
+    r = np.array(scan.meta["misalign_rotation"])
+    t = np.array(scan.meta["misalign_translation"])
+    c = np.array(scan.meta["scanner_center"])
+    center = np.array([0.1, -0.2, 0.7])   # any centre of the correction's rotations
+    # undoing every head's motion exactly leaves nothing; undoing none leaves all of it
+    inverse = r.transpose(0, 2, 1)
+    exact = Registration(inverse, np.einsum("hij,hj->hi", inverse, center - c - t) + c - center, center)
+    assert registration_error(scan, exact) == pytest.approx(
+        {"registration_error_deg": 0.0, "registration_error_mm": 0.0}, abs=1e-6)
+    none = Registration(np.stack([np.eye(3)] * 2), np.zeros((2, 3)), center)
+    left = registration_error(scan, none)
+    assert left["registration_error_deg"] == pytest.approx(planted["misregistration_deg"])
+    assert left["registration_error_mm"] == pytest.approx(planted["misregistration_mm"])
+    # undoing one head's motion only leaves the other's
+    one = Registration(np.stack([inverse[0], np.eye(3)]), np.stack([exact.translation[0], np.zeros(3)]), center)
+    angle = np.degrees(np.arccos((np.trace(r[1]) - 1) / 2))
+    assert registration_error(scan, one)["registration_error_deg"] == pytest.approx(angle)

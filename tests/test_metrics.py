@@ -9,7 +9,7 @@ import trimesh
 from bodyscan.benchmarks import BenchError
 from bodyscan.benchmarks.metrics import (
     GroundTruth, MetricParams, SurfaceIndex, closest_point_on_triangles, exterior_faces,
-    face_normals, joint_errors, sample_surface, score_mesh, section_accuracy,
+    face_normals, head_misregistration, joint_errors, sample_surface, score_mesh, section_accuracy,
 )
 
 PARAMS = MetricParams(n_samples=20_000)
@@ -320,3 +320,27 @@ def _section_of(truth, face):
     from bodyscan.benchmarks.metrics import SECTIONS
 
     return SECTIONS[truth.face_section[face]]
+
+
+def _turn_z(deg):
+    a = np.radians(deg)
+    return np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+
+
+def test_head_misregistration_is_the_heads_relative_motion_only():
+    # head 1 turned 0.5 degrees about the z axis and shifted 2 mm along x; head 0 in place
+    rot, shift = np.stack([np.eye(3), _turn_z(0.5)]), np.array([[0, 0, 0], [0.002, 0, 0]])
+    on_axis = head_misregistration(rot, shift, at=[0, 0, 1])
+    assert on_axis["deg"] == pytest.approx(0.5) and on_axis["mm"] == pytest.approx(2.0)
+    # off the axis the turn adds its arc: 1 m out, (cos - 1, sin) m
+    a = np.radians(0.5)
+    off = head_misregistration(rot, shift, at=[1, 0, 0])["mm"]
+    assert off == pytest.approx(1000 * np.hypot(np.cos(a) - 1 + 0.002, np.sin(a)))
+    # moving every head alike afterwards (the whole scanner) changes nothing
+    m, u = _turn_z(7.0) @ np.array([[1, 0, 0], [0, 0, -1], [0, 1, 0]]), np.array([0.1, -0.3, 0.05])
+    both = head_misregistration(m @ rot, shift @ m.T + u, at=[1, 0, 0])
+    assert both["deg"] == pytest.approx(0.5) and both["mm"] == pytest.approx(off)
+    # the largest pair of three heads: the two turned opposite ways
+    three = head_misregistration(np.stack([np.eye(3), _turn_z(0.3), _turn_z(-0.3)]), np.zeros((3, 3)), [0, 0, 0])
+    assert three["deg"] == pytest.approx(0.6) and three["mm"] == pytest.approx(0.0, abs=1e-12)
+    assert np.isnan(head_misregistration(np.eye(3)[None], np.zeros((1, 3)), [0, 0, 0])["deg"])
