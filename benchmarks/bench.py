@@ -756,6 +756,8 @@ def summary_table(table) -> str:
     n_scans = len(common.groupby(["body", "preset", "k"]))
     n_all = len(table.groupby(["body", "preset", "k"]))
     out.append(shared_times(table))
+    if registration_line(table):
+        out.append(registration_line(table))
     out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
                "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
@@ -781,6 +783,24 @@ def shared_times(table) -> str:
     return "per scan, shared by its methods: " + ("; ".join(parts) or "-")
 
 
+def registration_line(table) -> str:
+    """One line for scans whose heads were misaligned: the planted offset between heads and what
+    ``register_heads`` left of it (largest pair of heads; mean and worst over scans); empty for
+    scans without a misalignment."""
+    ok = table[table["status"] == "ok"]
+    if "misregistration_deg" not in ok.columns or ok["misregistration_deg"].isna().all():
+        return ""
+    scan = ok[ok["misregistration_deg"].notna()].groupby(["body", "preset", "k"]).first()
+    out = (f"heads misaligned by {scan['misregistration_deg'].mean():.2f} deg / "
+           f"{scan['misregistration_mm'].mean():.1f} mm (largest pair, at the body's centre; mean over scans)")
+    if "registration_error_deg" not in ok.columns or ok["registration_error_deg"].isna().all():
+        return out + "; not corrected (--param register_heads=true registers the heads)"
+    left = ok[ok["registration_error_deg"].notna()].groupby(["body", "preset", "k"]).first()
+    return out + (f"; left by register_heads: {left['registration_error_deg'].mean():.3f} deg / "
+                  f"{left['registration_error_mm'].mean():.2f} mm (worst {left['registration_error_deg'].max():.3f} "
+                  f"deg / {left['registration_error_mm'].max():.2f} mm)")
+
+
 def report_markdown(table, config: BenchConfig, summary: str, pictures: list, picture_case,
                     skipped: dict | None = None) -> str:
     """The ``report.md`` text."""
@@ -794,6 +814,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           *([f"Peers not run: {skipped_text(skipped)}.", ""]
             if skipped else []),
           shared_times(table) + ".", "",
+          *([registration_line(table) + ".", ""] if registration_line(table) else []),
           "## By method", "",
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "

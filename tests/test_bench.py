@@ -9,7 +9,8 @@ import pytest
 import trimesh
 
 from bodyscan.benchmarks import BenchError
-from bodyscan.benchmarks.bench import METHODS, BenchConfig, evaluate, registration_error, run_bench, score, scan_columns
+from bodyscan.benchmarks.bench import (METHODS, BenchConfig, evaluate, registration_error, registration_line,
+                                      run_bench, score, scan_columns)
 from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
 from bodyscan.poses.body import load_body, save_body
@@ -303,3 +304,16 @@ def test_registration_error_is_what_a_correction_leaves_of_the_planted_misalignm
     one = Registration(np.stack([inverse[0], np.eye(3)]), np.stack([exact.translation[0], np.zeros(3)]), center)
     angle = np.degrees(np.arccos((np.trace(r[1]) - 1) / 2))
     assert registration_error(scan, one)["registration_error_deg"] == pytest.approx(angle)
+
+
+def test_the_summary_says_how_misaligned_the_heads_were_and_what_registration_left():
+    rows = [dict(body=b, preset="paper", k=1.0, method=m, status="ok", misregistration_deg=d, misregistration_mm=4.0)
+            for b, d in (("a", 0.9), ("b", 1.1)) for m in ("proposed", "bpa")]
+    assert registration_line(pd.DataFrame(rows)).startswith("heads misaligned by 1.00 deg / 4.0 mm")
+    assert "not corrected" in registration_line(pd.DataFrame(rows))
+    for r, left in zip(rows[::2], (0.02, 0.06)):
+        r.update(registration_error_deg=left, registration_error_mm=10 * left)
+    assert registration_line(pd.DataFrame(rows)).endswith(
+        "left by register_heads: 0.040 deg / 0.40 mm (worst 0.060 deg / 0.60 mm)")
+    assert registration_line(pd.DataFrame([{**r, "misregistration_deg": np.nan} for r in rows[:1]])) == ""
+    assert registration_line(pd.DataFrame([dict(body="a", preset="paper", k=1.0, method="bpa", status="ok")])) == ""
