@@ -756,8 +756,9 @@ def summary_table(table) -> str:
     n_scans = len(common.groupby(["body", "preset", "k"]))
     n_all = len(table.groupby(["body", "preset", "k"]))
     out.append(shared_times(table))
-    if registration_line(table):
-        out.append(registration_line(table))
+    registration = registration_line(table)
+    if registration:
+        out.append(registration)
     out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
                "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
@@ -805,6 +806,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
                     skipped: dict | None = None) -> str:
     """The ``report.md`` text."""
     s = method_summary(table)
+    registration = registration_line(table)
     metrics = [m for m in TABLE if m in s.columns]
     md = ["# bodyscan bench", "",
           f"{table['body'].nunique()} posture(s) ({', '.join(sorted(table['body'].unique()))}), "
@@ -814,7 +816,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           *([f"Peers not run: {skipped_text(skipped)}.", ""]
             if skipped else []),
           shared_times(table) + ".", "",
-          *([registration_line(table) + ".", ""] if registration_line(table) else []),
+          *([registration + ".", ""] if registration else []),
           "## By method", "",
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "
