@@ -965,6 +965,10 @@ class FitParams:
                                            # points, also turned further in 360 / fit_facing degree steps,
                                            # the best fit kept (`recon.posture.fit._fit_facings`); 0 = fit the cloud as it
                                            # lies (chosen; measured in the module docstring of recon.posture)
+    fit_regrid: bool = field(default=True,  # 2.2: a fit refused on the voxel lattice is made again on the lattice
+        metadata={"help": "a refused fit is made again on the voxel lattice shifted by half a voxel", "unit": "", "range": None})
+                                           # shifted by half a voxel: the same data, another discretization (the
+                                           # volume's binary voxels make the match chaotic; not in the paper)
     fit_facing_retry: int = field(default=3,  # 2.1: ... this many sections unfitted (more than one limb: a fit that lost
         metadata={"help": "this many sections unfitted: try the other facings too", "unit": "", "range": (0, 11)})
                                            # its way; a scan missing one limb is not fitted again, each try being a
@@ -1033,7 +1037,7 @@ PAPER = {
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
     "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0, "extremities": False,
-    "fit_min_agreement": 0.0,
+    "fit_min_agreement": 0.0, "fit_regrid": False,
 }
 
 

@@ -912,6 +912,26 @@ def test_library_fits_meet_the_issue_targets(library_table):
     assert not missed
 
 
+def test_the_shifted_lattice_discretizes_the_same_points_half_a_voxel_off():
+    """`voxelize`'s ``offset``: the grid's origin moves back by that fraction of a voxel, and each
+    point's voxel index is floor(coordinate / size + pad + offset) from the points' corner: a point
+    more than half a voxel into a voxel of the first lattice lies in the next voxel of the shifted
+    one."""
+    from bodyscan.recon.posture.volume import voxelize
+
+    size = 0.02
+    pts = np.array([[0.0, 0.0, 0.0], [0.011, 0.0, 0.0], [0.029, 0.031, 0.05], [0.1, 0.1, 0.1]])
+    a, b = voxelize(pts, size), voxelize(pts, size, offset=0.5)
+    assert np.allclose(b.origin, a.origin - 0.5 * size)
+    for vol, off in ((a, 0.0), (b, 0.5)):
+        idx = np.floor((pts - pts.min(axis=0)) / size + 3 + off).astype(int)
+        assert vol.contour[tuple(idx.T)].all()
+        assert vol.contour.sum() == len({tuple(i) for i in idx})
+    # 11 mm from the corner: voxel 3 on the first lattice (3.55), voxel 4 on the shifted one (4.05)
+    assert a.contour[3, 3, 3] and not a.contour[4, 3, 3]
+    assert b.contour[3, 3, 3] and b.contour[4, 3, 3]
+
+
 def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     """tall_walking (1.97 m) at k = 3, fitted in the facing turned 180 degrees from its feet's (the one
     the cloud's third moment gave): its first match's hips sat high, the legs measured 2.18 m and

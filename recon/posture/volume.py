@@ -90,7 +90,8 @@ def voxel_size(points: np.ndarray, voxel_min: float, voxel_max: float, *, k: int
     return float(np.clip(spacing, voxel_min, voxel_max))
 
 
-def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes: int = 1, pad: int = 3) -> Volume:
+def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes: int = 1, pad: int = 3,
+             offset: float = 0.0) -> Volume:
     """Contour and inside voxels of ``points`` (n, 3) metres at edge ``size`` metres.
 
     Parameters
@@ -102,11 +103,14 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
         Metres: how far to look for enclosing contour voxels in the in-plane test.
     pad : int
         Empty voxels around the cloud's bounding box.
+    offset : float
+        The lattice shifted by this fraction of a voxel along every axis (the same points, another
+        discretization: `recon.posture.fit.estimate_posture`'s ``fit_regrid``).
     """
     from scipy import ndimage
 
     points = np.asarray(points, dtype=np.float64)
-    lo = points.min(axis=0) - pad * size
+    lo = points.min(axis=0) - (pad + offset) * size
     shape = tuple(int(s) for s in np.floor((points.max(axis=0) - lo) / size) + pad + 1)
     require_voxels(shape, size)
     idx = np.floor((points - lo) / size).astype(np.int64)
