@@ -15,7 +15,8 @@ partial body, the points of those sections cut from the scan, which the fit must
 ``kK_turn`` without degrees: turned by the body's own drawn turn and ``drawn``: all the body's
 drawn scanner conditions, k, turn, resolution and noise, for bodies of a corpus from
 `bodyscan poses sample`),
-fits it with `recon.estimate_posture` and prints one row per run: median and largest joint error
+fits it as `bodyscan fit` does (`recon.pipeline.estimate_fit`: outliers left out, then
+`recon.estimate_posture`) and prints one row per run: median and largest joint error
 (metres, over the joints the fit gives), the worst limb section's angle to its true bone (degrees,
 over the fitted limb sections), the sections listed unfitted (``*``: the scan shows it), the outcome
 and the seconds the fit took. Outcomes:
@@ -144,10 +145,15 @@ def outcome(err: dict, ang: dict, unfitted, seen: dict | None = None) -> str:
     return "fail" if med <= 0.10 and max(err.values()) <= 0.30 else "WRONG"
 
 
-def run_one(body, condition: str, resolution: float, params=None) -> dict:
-    """Scan ``body`` under ``condition``, fit, score: a table row (dict)."""
+def run_one(body, condition: str, resolution: float, params=None, clean: bool = True) -> dict:
+    """Scan ``body`` under ``condition``, fit, score: a table row (dict). ``clean``: fit as
+    `bodyscan fit` and `reconstruct` do (`recon.pipeline.estimate_fit`: outliers left out first);
+    False: `recon.estimate_posture` on the scan as it is (a test of a fit rule on a given cloud)."""
     from bodyscan import simulator
-    from bodyscan.recon import ReconError, estimate_posture
+    from bodyscan.recon import ReconError, ReconParams, estimate_posture
+    from bodyscan.recon.pipeline import estimate_fit
+
+    recon = ReconParams() if params is None else replace(ReconParams(), fit=params)
 
     if condition == "drawn":
         c = drawn_conditions(body)
@@ -162,14 +168,15 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k, noise_sigma=noise))
-    pts, gt, vd = scan.points, scan.gt_section, scan.view_dir   # the view directions, as `reconstruct` gets them
+    # the view directions and heads, as `reconstruct` gets them
+    pts, gt, vd, hd = scan.points, scan.gt_section, scan.view_dir, scan.head
     if "without-" in condition:
         # a partial body: the points of the named sections cut from the scan
         from bodyscan.recon.model import SECTIONS
 
         cut = re.split(r"_(?:noise|rot|turn)", condition.split("without-")[1])[0].split("+")
         keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
-        pts, gt, vd = pts[keep], gt[keep], vd[keep]
+        pts, gt, vd, hd = pts[keep], gt[keep], vd[keep], hd[keep]
     joints = body.joint_dict()
     if "rot" in condition:
         R = rot_z(float(condition.split("rot")[1].split("_")[0]))
@@ -180,7 +187,8 @@ def run_one(body, condition: str, resolution: float, params=None) -> dict:
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            fit = estimate_posture(pts, params, view_dir=vd)
+            fit = estimate_fit(pts, recon, view_dir=vd, head=hd) if clean else \
+                estimate_posture(pts, params, view_dir=vd)
     except ReconError as e:
         row.update(seconds=time.perf_counter() - t0, outcome="refused", message=str(e))
         return row

@@ -7,7 +7,7 @@ Usage::
                                           [--turn DEG]
 
 Each body of the library is scanned with the `paper` preset, its posture is the oracle one
-(`benchmarks.oracle.fit_from_body`; ``--estimated``: `recon.estimate_posture`), and it is
+(`benchmarks.oracle.fit_from_body`; ``--estimated``: `recon.pipeline.estimate_fit`), and it is
 reconstructed with ``proposed`` and ``simple``. One line per body:
 
 - ``acc``: `benchmarks.metrics.section_accuracy` of ``proposed`` (a point with m labels scores 1/m
@@ -67,7 +67,8 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
     """Measurements of one body (dict); ``turn``: degrees the body is turned about the vertical
     before the scan (the cameras see it from another side)."""
     from bodyscan.poses import load_body
-    from bodyscan.recon import ReconParams, estimate_posture, reconstruct
+    from bodyscan.recon import ReconParams, reconstruct
+    from bodyscan.recon.pipeline import estimate_fit
     from bodyscan.recon.model import SECTIONS
     from bodyscan.simulator.config import preset
     from bodyscan.simulator.scan import scan
@@ -81,9 +82,10 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
 
         body = turned_body(body, turn)
     s = scan(body, preset("paper"))
-    fit = estimate_posture(s.points, view_dir=s.view_dir) if estimated else fit_from_body(body)
-    truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))
     params = ReconParams.from_overrides(overrides)
+    # estimated as `reconstruct` does it (outliers left out first)
+    fit = estimate_fit(s.points, params, view_dir=s.view_dir, head=s.head) if estimated else fit_from_body(body)
+    truth = M.GroundTruth.from_body(body, M.MetricParams(n_samples=1000))
     out = {"body": body.name}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
