@@ -7,6 +7,14 @@ import os
 import sys
 from pathlib import Path
 
+from bodyscan._params import param_action
+
+
+def _listing() -> str:
+    from bodyscan.recon.params import stage_help
+
+    return stage_help()
+
 
 def _csv(text: str) -> tuple:
     return tuple(x.strip() for x in text.split(",") if x.strip())
@@ -55,9 +63,9 @@ def register(sub) -> None:
                         "repeatable (see benchmarks/methods.py)")
     p.add_argument("--no-peers", action="store_true",
                    help="only proposed and simple (when --methods is not given)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--param", action=param_action(_listing), default=[], metavar="NAME=VALUE",
                    help="reconstruction parameter override by its name (e.g. t_d=0.3), or a "
-                        "parameter of your own method; repeatable")
+                        "parameter of your own method; repeatable; `--param help` lists them")
     p.add_argument("--scanner", action="append", default=[], metavar="NAME=VALUE",
                    help="scanner setting override for every preset (e.g. noise_sigma=0.001, metres); "
                         "repeatable")

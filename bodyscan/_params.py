@@ -190,6 +190,22 @@ def wants_help(items) -> bool:
     return any(str(item).strip().lower() in ("help", "list", "?") for item in items or ())
 
 
+def param_action(listing):
+    """An argparse action for a repeatable ``--param NAME=VALUE``: ``--param help`` prints
+    ``listing()`` (the parameter list, built only then) and exits, as ``--help`` does, before the
+    command's other arguments are checked (``bodyscan fit --param help`` needs no cloud)."""
+    import argparse
+
+    class ParamAction(argparse.Action):
+        def __call__(self, parser, namespace, values, option_string=None):
+            if wants_help([values]):
+                print(listing())
+                parser.exit()
+            setattr(namespace, self.dest, list(getattr(namespace, self.dest, None) or []) + [values])
+
+    return ParamAction
+
+
 def fields_without_help(cls) -> list[str]:
     """Names of the fields of ``cls`` that lack a one-line ``help`` in their metadata."""
     return [f.name for f in dataclasses.fields(cls) if not (f.metadata or {}).get("help")]

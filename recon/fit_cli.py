@@ -5,6 +5,14 @@ from __future__ import annotations
 import sys
 import warnings
 
+from bodyscan._params import param_action
+
+
+def _listing() -> str:
+    from .params import stage_help
+
+    return stage_help(("fit", "clean"))
+
 
 def register(sub) -> None:
     """Add ``bodyscan fit`` to the subparsers ``sub``."""
@@ -19,7 +27,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="FIT.json", help="output fit (JSON)")
     p.add_argument("--preview", metavar="PNG", help="also draw the cloud with the model over it, in "
                    "three views, after the volume match and after the fine adjustment")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--param", action=param_action(_listing), default=[], metavar="NAME=VALUE",
                    help="set a posture-estimation parameter (repeatable); `--param help` lists them "
                         "all with default, unit, range and meaning")
     p.set_defaults(func=run)
@@ -36,13 +44,6 @@ def run(args) -> int:
 
     from . import ReconError
 
-    from bodyscan._params import wants_help
-
-    if wants_help(args.param):
-        from .params import stage_help
-
-        print(stage_help(("fit", "clean")))
-        return 0
     known = {f.name for cls in (FitParams, CleanParams) for f in fields(cls)}
     for pair in args.param:   # the posture depends on the fit's and the cleaning's parameters only
         name, sep, _ = pair.partition("=")

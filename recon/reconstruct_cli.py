@@ -9,12 +9,20 @@ from pathlib import Path
 
 import numpy as np
 
+from bodyscan._params import param_action
+
 from . import ReconError
 
 #: Close-ups of the preview: (title, joints whose mean is the centre, offset along z in metres).
 CLOSE_UPS = (("left armpit", ("shoulder_l",), -0.08), ("right armpit", ("shoulder_r",), -0.08),
              ("crotch", ("hip_l", "hip_r"), -0.08))
 CLOSE_UP_HALF = 0.14  # metres
+
+
+def _listing() -> str:
+    from .params import stage_help
+
+    return stage_help()
 
 
 def register(sub) -> None:
@@ -36,7 +44,7 @@ def register(sub) -> None:
     p.add_argument("--out", required=True, metavar="MESH.ply", help="output mesh (binary PLY)")
     p.add_argument("--preview", metavar="PNG", help="also draw the mesh coloured by section: front, "
                    "side, back, and close-ups of the armpits and crotch")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--param", action=param_action(_listing), default=[], metavar="NAME=VALUE",
                    help="set a reconstruction parameter (repeatable); `--param help` lists them all, "
                         "by stage, with default, unit, range and meaning (recon/params.py explains "
                         "the choices)")
@@ -96,13 +104,6 @@ def run(args) -> int:
     from .pipeline import reconstruct
 
     from bodyscan._io import check_out
-    from bodyscan._params import wants_help
-
-    if wants_help(args.param):
-        from .params import stage_help
-
-        print(stage_help())
-        return 0
     params = ReconParams.from_overrides(parse_params(args.param))
     out = check_out(args.out, suffixes=(".ply",), error=ReconError)
     if args.preview:

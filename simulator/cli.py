@@ -6,9 +6,19 @@ import json
 import sys
 import time
 
+from bodyscan._params import param_action
+
 from .config import HEAD_LAYOUTS, PRESETS
 
 _P, _S = PRESETS["paper"], PRESETS["scanner"]
+
+
+def _listing() -> str:
+    from bodyscan._params import param_help
+
+    from .config import Head, ScannerConfig
+
+    return param_help({"scanner (ScannerConfig)": ScannerConfig, "each head (Head; --param heads=[{...}])": Head})
 
 
 def _from_preset(field: str, fmt=lambda v: f"{v:g}") -> str:
@@ -82,7 +92,7 @@ def register(sub) -> None:
     p.add_argument("--no-center", action="store_true",
                    help="put the scanner axis at x = y = 0 instead of the body's centre")
     p.add_argument("--seed", type=int, default=0, help="seed of noise, outliers and misalignment (default: 0)")
-    p.add_argument("--param", action="append", default=[], metavar="NAME=VALUE",
+    p.add_argument("--param", action=param_action(_listing), default=[], metavar="NAME=VALUE",
                    help="set any ScannerConfig field by name (JSON value), e.g. --param "
                         "laser_angle_deg=20; repeatable; applied last; `--param help` lists them")
     p.add_argument("--preview", default=None, metavar="PNG",
@@ -151,14 +161,8 @@ def _scan(args) -> int:
     from .scan import scan
 
     from bodyscan._io import check_out
-    from bodyscan._params import param_help, wants_help
 
     from . import ScanError
-    from .config import Head, ScannerConfig
-
-    if wants_help(args.param):
-        print(param_help({"scanner (ScannerConfig)": ScannerConfig, "each head (Head; --param heads=[{...}])": Head}))
-        return 0
     config = build_config(args)
     check_out(args.out, error=ScanError)
     if args.preview:

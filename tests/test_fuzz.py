@@ -117,6 +117,17 @@ def test_param_help_is_grouped_and_generated(capsys):
     assert code == 0 and "resolution=0.01" in out and "laser_roll_deg" in out
 
 
+def test_param_help_needs_no_other_argument(capsys):
+    """``--param help`` lists the parameters as ``--help`` does, before the command's required
+    arguments are asked for; without it they still are."""
+    for command, name in (("fit", "fit_regrid="), ("reconstruct", "t_d="), ("scan", "resolution="),
+                          ("bench", "t_d=")):
+        code, out, err = run([command, "--param", "help"], capsys)
+        assert code == 0 and name in out, (command, err)
+    code, out, err = run(["fit", "--param", "fit_regrid=false"], capsys)
+    assert code == 2 and "required: CLOUD, --out" in err and not out
+
+
 def test_bool_parser_is_strict():
     for text in ("true", "1", "yes", "ON", " on "):
         assert parse_bool(text) is True
