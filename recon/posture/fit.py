@@ -200,9 +200,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    others, or saw others in front. A fit with left and right swapped shows the cameras the same
    surfaces: this check cannot see it. A refused cloud is fitted once more, on the volume's
    lattice shifted by half a voxel (`fit_regrid`; not in the paper): the binary voxels make the
-   match chaotic (leaving out a noise-free scan's few outliers, about 0.1 % of its points, changes
-   the outcome of about one run in six), so another discretization of the same points is another
-   draw; its fit passes the same checks or the first refusal stands.
+   match chaotic (a change of a few points can change the fit), so another discretization of the
+   same points is another draw; its fit passes the same checks or the first refusal stands.
 8. The chest's top (the neck) is centred between the sides of the neck seen in the points, the
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
    file format's), placed off the sections' ends and axes where the rig's lie
