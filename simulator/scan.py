@@ -69,8 +69,10 @@ class Scan:
         ``points_per_head``, ``scanner_center`` (3,), ``rays`` (rays cast for this scan; fewer when
         a `Scanner` reuses camera rays); with a misalignment, the ground truth of each head's:
         ``misalign_rotation`` (h, 3, 3) and ``misalign_translation`` (h, 3), metres (a point ``p``
-        measured as ``R (p - scanner_center) + scanner_center + t``). Nothing time-dependent:
-        same inputs, same file.
+        measured as ``R (p - scanner_center) + scanner_center + t``); when the body reaches beyond
+        every head's field (a `ScanWarning` too), ``outside_field``: the fraction of its vertices
+        there (cut from the scan: raised hands above a tall body). Nothing time-dependent: same
+        inputs, same file.
     """
 
     points: np.ndarray
@@ -375,6 +377,8 @@ class Scanner:
             "scanner_center": [float(c) for c in center],
             "rays": int(self.caster.n_rays - rays0),
         }
+        if not covered.all():
+            result.meta["outside_field"] = float((~covered).mean())
         if config.misalign_deg > 0 or config.misalign_mm > 0:
             result.meta["misalign_rotation"] = [r.tolist() for r, _ in planted]
             result.meta["misalign_translation"] = [t.tolist() for _, t in planted]

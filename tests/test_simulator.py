@@ -402,6 +402,18 @@ def test_bad_meshes_give_clear_errors(sphere):
         scan(far)
     with pytest.warns(ScanWarning, match="outside every head's field"):
         scan(sphere, preset(heads=(Head("front", field_height=0.5),)))
+
+
+def test_scan_records_the_part_of_the_body_outside_the_field(sphere):
+    # a parallel head at height 1.1 with a field 0.5 m high sees z in 0.85..1.35: the sphere
+    # (centre z = 1.0, radius 0.5) reaches out of it above and below
+    with pytest.warns(ScanWarning, match="outside every head's field"):
+        cut = scan(sphere, preset(heads=(Head("front", height=1.1, field_height=0.5),)))
+    z = sphere.vertices[:, 2]
+    assert cut.meta["outside_field"] == pytest.approx(np.mean(np.abs(z - 1.1) > 0.25), abs=1e-3)
+    assert 0.2 < cut.meta["outside_field"] < 0.6
+    assert cut.points[:, 2].max() <= 1.35 + 1e-6 and cut.points[:, 2].min() >= 0.85 - 1e-6
+    assert "outside_field" not in scan(sphere).meta   # the whole sphere in the field: no key
     with pytest.raises(ScanError, match="resolution"):
         preset(resolution=-1)
     with pytest.raises(ScanError, match="unknown scanner preset"):

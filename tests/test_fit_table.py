@@ -1,0 +1,52 @@
+"""`benchmarks.fit_table`'s rates and its account of bodies the scanner's field cuts."""
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bodyscan.benchmarks import fit_table
+
+
+def _row(body, outcome, silent=False, outside=0.0):
+    return dict(body=body, condition="k1", outcome=outcome, silent=silent, seconds=1.0, outside_field=outside,
+                message="refused", median=0.02, max=0.2 if silent else 0.05, worst_joint="wrist_l", angle=5.0,
+                unfitted=(), seen={})
+
+
+def test_rates_count_met_and_silent_with_wilson_intervals():
+    rows = [_row("a", "pass"), _row("b", "part"), _row("c", "fail", silent=True), _row("d", "refused")]
+    lo, hi = fit_table.wilson(2, 4)
+    slo, shi = fit_table.wilson(1, 4)
+    text = fit_table.rates(rows)
+    assert f"targets met 2/4 = 0.500 (95% CI {lo:.3f}-{hi:.3f})" in text
+    assert f"1/4 = 0.250 (95% CI {slo:.3f}-{shi:.3f})" in text
+    # Wilson's interval for 2 of 4 (z = 1.96), computed by hand
+    assert (lo, hi) == pytest.approx((0.1500, 0.8500), abs=1e-4)
+
+
+def test_summary_gives_the_rates_in_the_field_apart(monkeypatch, capsys):
+    rows = {"tall": _row("tall", "fail", silent=True, outside=0.01), "short": _row("short", "pass")}
+    monkeypatch.setattr("bodyscan.poses.expand_bodies", lambda names: list(names))
+    monkeypatch.setattr("bodyscan.poses.load_body", lambda name: dataclasses.make_dataclass("B", ["name"])(name))
+    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params: dict(rows[body.name]))
+    assert fit_table.main(["--bodies", "tall,short", "--conditions", "k1"]) == 0
+    out = capsys.readouterr().out
+    assert "RATES targets met 1/2 = 0.500" in out
+    assert "RATES IN FIELD (left out: 1 runs of tall, " in out and "targets met 1/1 = 1.000" in out
+    rows["tall"]["outside_field"] = 0.0
+    assert fit_table.main(["--bodies", "tall,short", "--conditions", "k1"]) == 0
+    assert "IN FIELD" not in capsys.readouterr().out
+
+
+def test_a_body_beyond_the_field_is_marked():
+    # the library's raised arms reach 2.10 m; made 1.2 times larger, 2.53 m, above the `paper`
+    # preset's field (z up to 2.4 m): the hands are cut from the scan, and the row says so
+    from bodyscan.poses import load_body
+
+    body = load_body("arms_raised")
+    tall = dataclasses.replace(body, vertices=body.vertices * 1.2, joints=body.joints * 1.2)
+    z = tall.vertices[:, 2]
+    row = fit_table.run_one(tall, "k1", 0.02)
+    assert row["outside_field"] == pytest.approx(np.mean(z > 2.4), abs=2e-3) and row["outside_field"] > 0
+    assert fit_table.run_one(body, "k1", 0.02)["outside_field"] == 0.0
