@@ -209,6 +209,8 @@ def scan_columns(scan) -> dict:
     if "laser_angle_deg" in cfg:
         out["k"] = float(cfg["laser_angle_deg"]) / 15.0
     out["n_points"] = int(len(scan.points))
+    # the fraction of the body beyond every head's field (cut from the scan; 0 for a body inside)
+    out["outside_field"] = float(getattr(scan, "meta", {}).get("outside_field", 0.0))
     planted = _planted_misalignment(scan)
     if planted is not None:
         off = head_misregistration(*planted)

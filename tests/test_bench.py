@@ -317,3 +317,22 @@ def test_the_summary_says_how_misaligned_the_heads_were_and_what_registration_le
         "left by register_heads: 0.040 deg / 0.40 mm (worst 0.060 deg / 0.60 mm)")
     assert registration_line(pd.DataFrame([{**r, "misregistration_deg": np.nan} for r in rows[:1]])) == ""
     assert registration_line(pd.DataFrame([dict(body="a", preset="paper", k=1.0, method="bpa", status="ok")])) == ""
+
+
+def test_scan_columns_give_the_part_of_the_body_beyond_the_field():
+    """`outside_field`: 0 for a body inside the heads' fields; for one lifted 1 m (its top 0.36 m
+    above the `paper` preset's top, z 2.4 m), the fraction of its vertices above it."""
+    import dataclasses
+    import warnings
+
+    from bodyscan import simulator
+
+    body = load_body("standing")
+    cfg = simulator.preset("paper", resolution=0.05)
+    assert scan_columns(simulator.scan(body, cfg))["outside_field"] == 0.0
+    up = dataclasses.replace(body, vertices=body.vertices + [0.0, 0.0, 1.0], joints=body.joints + [0.0, 0.0, 1.0])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cols = scan_columns(simulator.scan(up, cfg))
+    assert cols["outside_field"] == pytest.approx(np.mean(up.vertices[:, 2] > 2.4), abs=2e-3)
+    assert cols["outside_field"] > 0.01
