@@ -761,6 +761,9 @@ def summary_table(table) -> str:
     registration = registration_line(table)
     if registration:
         out.append(registration)
+    field = field_line(table)
+    if field:
+        out.append(field)
     out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
                "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
@@ -804,11 +807,27 @@ def registration_line(table) -> str:
                   f"deg / {left['registration_error_mm'].max():.2f} mm)")
 
 
+def field_line(table) -> str:
+    """One line naming the scans whose body reached beyond the heads' fields (``outside_field``:
+    the part there was not measured, and every method is scored against the whole body); empty
+    when every body lay inside."""
+    if "outside_field" not in table.columns:
+        return ""
+    scan = table.groupby(["body", "preset", "k"])["outside_field"].first()
+    cut = scan[scan > 0]
+    if not len(cut):
+        return ""
+    which = ", ".join(f"{b} {p} k={k:g} ({100 * v:.1f} %)" for (b, p, k), v in cut.items())
+    return (f"{len(cut)} of {len(scan)} scans cut by the heads' fields (share of the body's vertices "
+            f"not measured): {which}")
+
+
 def report_markdown(table, config: BenchConfig, summary: str, pictures: list, picture_case,
                     skipped: dict | None = None) -> str:
     """The ``report.md`` text."""
     s = method_summary(table)
     registration = registration_line(table)
+    field = field_line(table)
     metrics = [m for m in TABLE if m in s.columns]
     md = ["# bodyscan bench", "",
           f"{table['body'].nunique()} posture(s) ({', '.join(sorted(table['body'].unique()))}), "
@@ -819,6 +838,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
             if skipped else []),
           shared_times(table) + ".", "",
           *([registration + ".", ""] if registration else []),
+          *([field + ".", ""] if field else []),
           "## By method", "",
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "

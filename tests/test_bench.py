@@ -9,8 +9,8 @@ import pytest
 import trimesh
 
 from bodyscan.benchmarks import BenchError
-from bodyscan.benchmarks.bench import (METHODS, BenchConfig, evaluate, registration_error, registration_line,
-                                      run_bench, score, scan_columns)
+from bodyscan.benchmarks.bench import (METHODS, BenchConfig, evaluate, field_line, registration_error,
+                                      registration_line, run_bench, score, scan_columns)
 from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
 from bodyscan.poses.body import load_body, save_body
@@ -336,3 +336,12 @@ def test_scan_columns_give_the_part_of_the_body_beyond_the_field():
         cols = scan_columns(simulator.scan(up, cfg))
     assert cols["outside_field"] == pytest.approx(np.mean(up.vertices[:, 2] > 2.4), abs=2e-3)
     assert cols["outside_field"] > 0.01
+
+
+def test_field_line_names_the_scans_cut_by_the_field():
+    rows = [dict(body=b, preset="paper", k=1.0, method=m, status="ok", outside_field=v)
+            for b, v in (("tall", 0.138), ("short", 0.0)) for m in ("proposed", "bpa")]
+    assert field_line(pd.DataFrame(rows)) == ("1 of 2 scans cut by the heads' fields (share of the body's "
+                                              "vertices not measured): tall paper k=1 (13.8 %)")
+    assert field_line(pd.DataFrame([r for r in rows if r["body"] == "short"])) == ""
+    assert field_line(pd.DataFrame([dict(body="a", preset="paper", k=1.0, method="bpa", status="ok")])) == ""
