@@ -273,7 +273,7 @@ def main(argv=None) -> int:
           f"fit seconds median {np.median(secs):.2f} max {max(secs):.2f}")
     print("RATES " + rates(rows))
     inside = [r for r in rows if not r.get("outside_field")]
-    if rows and len(inside) < len(rows):
+    if len(inside) < len(rows):
         cut = sorted({r["body"] for r in rows if r.get("outside_field")})
         print(f"RATES IN FIELD (left out: {len(rows) - len(inside)} runs of {', '.join(cut)}, whose body "
               f"reaches beyond the scanner's field) " + (rates(inside) if inside else "no run left"))

@@ -348,10 +348,11 @@ class Scanner:
             z1 = max(h.height + h.field_height / 2 for h in config.heads)
             raise ScanError(f"{where}: the body (z {lo[2]:.3g}..{hi[2]:.3g}) lies outside the field of every "
                             f"head (z {z0:.3g}..{z1:.3g} m): give it in metres, +z up, standing on z = 0")
-        if not covered.all():
+        outside = float((~covered).mean())   # the share of the body no head sees (in the metadata)
+        if outside:
             out = self.body.vertices[~covered]
             lo, hi = out.min(axis=0), out.max(axis=0)
-            warnings.warn(f"{where}: {100 * (~covered).mean():.1f} % of the body's vertices (x {lo[0]:.2f}.."
+            warnings.warn(f"{where}: {100 * outside:.1f} % of the body's vertices (x {lo[0]:.2f}.."
                           f"{hi[0]:.2f}, z {lo[2]:.2f}..{hi[2]:.2f} m) lie outside every head's field and are "
                           "not measured: enlarge field_width/field_height or use another head layout",
                           ScanWarning, stacklevel=2)
@@ -377,8 +378,8 @@ class Scanner:
             "scanner_center": [float(c) for c in center],
             "rays": int(self.caster.n_rays - rays0),
         }
-        if not covered.all():
-            result.meta["outside_field"] = float((~covered).mean())
+        if outside:
+            result.meta["outside_field"] = outside
         if config.misalign_deg > 0 or config.misalign_mm > 0:
             result.meta["misalign_rotation"] = [r.tolist() for r, _ in planted]
             result.meta["misalign_translation"] = [t.tolist() for _, t in planted]
