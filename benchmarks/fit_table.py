@@ -39,7 +39,9 @@ wrong (a joint the fit gives more than `SILENT` off, no error raised). When some
 beyond the scanner's field (the `paper` preset sees z up to 2.4 m: a tall body's raised hands are
 cut from the scan; each row's ``outside_field`` is the fraction of the body's vertices there), a
 third line gives the same rates over the runs whose body lies wholly in the field, and names the
-bodies left out. The second line stays the measure.
+bodies left out. The second line stays the measure. With several conditions, one line per
+condition gives the same rates and the refusals over its runs: a body turned in the scanner
+(``k1_turn90``) is seen from its sides and misses otherwise than one facing the cameras.
 """
 
 from __future__ import annotations
@@ -272,6 +274,11 @@ def main(argv=None) -> int:
           f"; targets met (pass+part) {counts['pass'] + counts['part']}; "
           f"fit seconds median {np.median(secs):.2f} max {max(secs):.2f}")
     print("RATES " + rates(rows))
+    if len(conds) > 1:
+        for c in conds:
+            some = [r for r in rows if r["condition"] == c]
+            refused = sum(r["outcome"] == "refused" for r in some)
+            print(f"RATES {c}: " + rates(some) + f"; refused {refused}/{len(some)}")
     inside = [r for r in rows if not r.get("outside_field")]
     if len(inside) < len(rows):
         cut = sorted({r["body"] for r in rows if r.get("outside_field")})

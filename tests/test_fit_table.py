@@ -50,3 +50,20 @@ def test_a_body_beyond_the_field_is_marked():
     row = fit_table.run_one(tall, "k1", 0.02)
     assert row["outside_field"] == pytest.approx(np.mean(z > 2.4), abs=2e-3) and row["outside_field"] > 0
     assert fit_table.run_one(body, "k1", 0.02)["outside_field"] == 0.0
+
+
+def test_summary_gives_the_rates_per_condition(monkeypatch, capsys):
+    rows = {("a", "k1"): _row("a", "pass"), ("b", "k1"): _row("b", "pass"),
+            ("a", "k1_turn90"): _row("a", "refused"), ("b", "k1_turn90"): _row("b", "fail", silent=True)}
+    monkeypatch.setattr("bodyscan.poses.expand_bodies", lambda names: list(names))
+    monkeypatch.setattr("bodyscan.poses.load_body", lambda name: dataclasses.make_dataclass("B", ["name"])(name))
+    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params: {**rows[body.name, c], "condition": c})
+    assert fit_table.main(["--bodies", "a,b", "--conditions", "k1,k1_turn90"]) == 0
+    out = capsys.readouterr().out
+    assert "RATES targets met 2/4 = 0.500" in out
+    assert "RATES k1: targets met 2/2 = 1.000" in out and "not listed) 0/2 = 0.000" in out
+    line = next(s for s in out.splitlines() if s.startswith("RATES k1_turn90: "))
+    assert "targets met 0/2 = 0.000" in line and "not listed) 1/2 = 0.500" in line and line.endswith("refused 1/2")
+    # one condition: no per-condition line
+    assert fit_table.main(["--bodies", "a,b", "--conditions", "k1"]) == 0
+    assert "RATES k1:" not in capsys.readouterr().out
