@@ -3,7 +3,7 @@
 Usage::
 
     python -m bodyscan.benchmarks.fit_table [--resolution 0.01] [--bodies a,b|DIR] [--conditions k1,k1_rot137,k2,k3]
-                                   [--param NAME=VALUE ...] [--json ROWS.json]
+                                   [--param NAME=VALUE ...] [--json ROWS.json] [--jobs N]
 
 Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
@@ -206,8 +206,17 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
     row.update(median=float(np.median(list(err.values()))), max=max(err.values()),
                worst_joint=max(err, key=err.get), angle=max(ang.values(), default=np.nan),
                unfitted=tuple(fit.unfitted), seen={n: seen[n] for n in fit.unfitted},
-               outcome=outcome(err, ang, fit.unfitted, seen), silent=max(err.values()) > SILENT)
+               outcome=outcome(err, ang, fit.unfitted, seen), silent=max(err.values()) > SILENT,
+               errors=err)
     return row
+
+
+def run_body(name: str, conditions: list, resolution: float, params=None) -> list:
+    """`run_one` for every condition of the body ``name`` (a library name or body file): its rows."""
+    from bodyscan.poses import load_body
+
+    body = load_body(name)
+    return [{**run_one(body, c, resolution, params), "body": body.name} for c in conditions]
 
 
 def rates(rows: list) -> str:
@@ -244,10 +253,17 @@ def main(argv=None) -> int:
                          "any of them + _noiseMM "
                          "(default k1,k1_rot137,k2,k3)")
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
-    ap.add_argument("--json", help="also write the rows to this JSON file")
+    ap.add_argument("--json", help="also write the rows to this JSON file (each with its per-joint "
+                                   "errors, metres)")
+    ap.add_argument("--jobs", type=int, default=1,
+                    help="bodies run at once in worker processes (default 1: the seconds column is "
+                         "then the fit's own time; with more, the rows are the same and print as "
+                         "each body ends, their seconds include the contention)")
     a = ap.parse_args(argv)
+    if a.jobs < 1:
+        ap.error(f"--jobs must be at least 1, not {a.jobs}")
 
-    from bodyscan.poses import expand_bodies, load_body
+    from bodyscan.poses import expand_bodies
     from bodyscan.recon import FitParams
 
     params = FitParams.from_strings(a.param)
@@ -256,14 +272,26 @@ def main(argv=None) -> int:
     print(f"resolution {a.resolution} m; median/max joint error cm; worst limb angle deg")
     print(f"{'body':<22} {'condition':<10} {'median':>6} {'max':>6} {'worst joint':<12} {'angle':>5}  "
           f"{'unfitted':<28} {'outcome':<7} {'s':>5}")
-    rows = []
-    for name in names:
-        body = load_body(name)
-        for c in conds:
-            r = run_one(body, c, a.resolution, params)
-            r["body"] = body.name
-            rows.append(r)
+    done = {}
+
+    def finished(name, rows_):
+        done[name] = rows_
+        for r in rows_:
             print(format_row(r), flush=True)
+
+    if a.jobs == 1 or len(names) == 1:
+        for name in names:
+            finished(name, run_body(name, conds, a.resolution, params))
+    else:
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(a.jobs, len(names)),
+                                 mp_context=multiprocessing.get_context("spawn")) as pool:
+            futures = {pool.submit(run_body, name, conds, a.resolution, params): name for name in names}
+            for f in as_completed(futures):
+                finished(futures[f], f.result())
+    rows = [r for name in names for r in done[name]]
     for r in rows:
         if r["outcome"] == "refused":
             print(f"  refused {r['body']} {r['condition']}: {r['message']}")

@@ -67,3 +67,26 @@ def test_summary_gives_the_rates_per_condition(monkeypatch, capsys):
     # one condition: no per-condition line
     assert fit_table.main(["--bodies", "a,b", "--conditions", "k1"]) == 0
     assert "RATES k1:" not in capsys.readouterr().out
+
+
+def test_jobs_give_the_same_rows(tmp_path):
+    # two library bodies fitted in two worker processes: the same rows, in the same order, as one
+    # after the other (the seconds aside), each with its per-joint errors
+    import json
+
+    args = ["--bodies", "standing,squat", "--conditions", "k1", "--resolution", "0.02"]
+    rows = []
+    for jobs in ("1", "2"):
+        out = tmp_path / f"rows{jobs}.json"
+        assert fit_table.main(args + ["--jobs", jobs, "--json", str(out)]) == 0
+        rows.append([{k: v for k, v in r.items() if k != "seconds"} for r in json.loads(out.read_text())])
+    assert rows[0] == rows[1]
+    assert [r["body"] for r in rows[0]] == ["standing", "squat"]
+    fitted = [r for r in rows[0] if r["outcome"] != "refused"]
+    assert fitted and all(max(r["errors"].values()) == pytest.approx(r["max"]) for r in fitted)
+
+
+def test_jobs_below_one_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as e:
+        fit_table.main(["--jobs", "0"])
+    assert e.value.code == 2 and "--jobs must be at least 1" in capsys.readouterr().err
