@@ -1107,6 +1107,29 @@ def test_split_hips_lowers_thighs_to_the_crotch():
     assert all(np.allclose(split_hips(points, flexed)[k].start, flexed[k].start) for k in ("thigh_l", "thigh_r"))
 
 
+def test_pelvis_by_crotch_meets_the_crotch_halfway():
+    """A waist fitted 15 cm above a crotch at 0.80 m: the pelvis and both hips move up the waist's
+    axis halfway to PELVIS_ABOVE_CROTCH statures above the crotch, the other joints stay; flexed
+    hips (no crotch) leave every joint where it was."""
+    from bodyscan.recon.posture.bodymodel import PELVIS_ABOVE_CROTCH, StandardBody
+    from bodyscan.recon.posture.joints import pelvis_by_crotch
+
+    points, secs = _crotch_scene(0.80)
+    body = StandardBody(1.70)
+    joints = {"pelvis": np.array([0.0, 0.02, 0.95]), "hip_l": np.array([0.1, 0.0, 0.94]),
+              "hip_r": np.array([-0.1, 0.0, 0.94]), "knee_l": np.array([0.1, 0.0, 0.5])}
+    out = pelvis_by_crotch(joints, secs, points, body)
+    want = 0.5 * ((0.80 + PELVIS_ABOVE_CROTCH * 1.70) - 0.95)          # the crotch at 0.80 m (found within 6 mm)
+    for k in ("pelvis", "hip_l", "hip_r"):
+        assert out[k][2] - joints[k][2] == pytest.approx(want, abs=0.003)
+        assert np.allclose(out[k][:2], joints[k][:2])
+    assert np.array_equal(out["knee_l"], joints["knee_l"])
+    x = np.array([1.0, 0, 0])
+    flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
+                         for s, c in (("l", 0.1), ("r", -0.1))}}
+    assert all(np.array_equal(v, joints[k]) for k, v in pelvis_by_crotch(joints, flexed, points, body).items())
+
+
 def _torso_scene():
     """The crotch scene with a chest column on the waist (pelvis end 0.95, chest joint 1.20, neck
     1.50 m): the crotch seen at 0.80 m, 15 cm below the waist column's lower end."""
