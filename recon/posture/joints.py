@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, JOINT_OFFSET, KNEE_SPLIT, LIMBS,
-                        LOWER_LEG_SHAPE, PELVIS_ABOVE_CROTCH, SHOULDER_CAP, SPINE_BACK, STATURE, TORSO_SPLIT, TORSO_SPLIT_CROTCH,
-                        TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE, StandardBody, kind_of)
+                        LOWER_LEG_SHAPE, PELVIS_ABOVE_CROTCH, SHOULDER_CAP, SPINE_BACK, STATURE, TORSO_SPLIT,
+                        TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE, StandardBody, kind_of)
 from ..geometry import cross, turn_between, unit
 from ..model import SectionShape
 
@@ -260,9 +260,9 @@ def pelvis_by_crotch(joints: dict, secs: dict, points, body: StandardBody) -> di
     The pelvis and the hips ride with the waist column's lower end, which the volume and the points
     pin poorly along the torso's axis (the pelvis is the torso's worst-placed landmark there). The
     crotch is a second, independent estimate of the same height: on the tune corpus the two err
-    alike (3.0 and 2.7 cm sd along the axis) and uncorrelated, so their mean halves the variance.
-    The pelvis and the hips are one bone and move together; the seams (the clustering's planes)
-    are not moved. Unchanged when no crotch is found (hips flexed, a leg missing).
+    alike (3.0 and 2.7 cm sd along the axis) and uncorrelated, so their mean about halves the
+    variance. The pelvis and the hips are one bone and move together; the seams (the clustering's
+    planes) are not moved. Unchanged when no crotch is found (hips flexed, a leg missing).
 
     Parameters
     ----------
