@@ -45,6 +45,7 @@ from pathlib import Path
 import numpy as np
 
 from . import BenchError
+from .jobs import each_done
 from .metrics import SECTIONS, GroundTruth, MetricParams, head_misregistration, score_mesh
 from .peers import PEERS, PeerParams, available_peers, reconstruct_peer
 
@@ -654,19 +655,8 @@ def run_bench(config: BenchConfig | None = None, out=None, *, jobs: int = 1,
         _log(f"[{len(results)}/{len(config.bodies)} postures, {time.time() - started:.0f} s] "
              f"{name} done" + (f", {bad} failed" if bad else ""), progress)
 
-    if jobs == 1 or len(config.bodies) == 1:
-        for name in config.bodies:
-            finished(name, _bench_body(name, config, picture_case, verbose, out))
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=min(jobs, len(config.bodies)),
-                                 mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(_bench_body, name, config, picture_case, verbose, out): name
-                       for name in config.bodies}
-            for f in as_completed(futures):
-                finished(futures[f], f.result())
+    for name, done in each_done(_bench_body, config.bodies, config, picture_case, verbose, out, jobs=jobs):
+        finished(name, done)
     rows = [r for name in config.bodies for r in results[name]]
     table = pd.DataFrame(rows)
     from bodyscan._io import atomic_write, write_json, write_text

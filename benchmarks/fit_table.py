@@ -54,6 +54,7 @@ from dataclasses import replace
 
 import numpy as np
 
+from bodyscan.benchmarks.jobs import each_done
 from bodyscan.recon.posture.bodymodel import LIMBS
 
 #: Limb sections and the ground-truth bone each follows.
@@ -273,24 +274,10 @@ def main(argv=None) -> int:
     print(f"{'body':<22} {'condition':<10} {'median':>6} {'max':>6} {'worst joint':<12} {'angle':>5}  "
           f"{'unfitted':<28} {'outcome':<7} {'s':>5}")
     done = {}
-
-    def finished(name, rows_):
-        done[name] = rows_
-        for r in rows_:
+    for name, some in each_done(run_body, names, conds, a.resolution, params, jobs=a.jobs):
+        done[name] = some
+        for r in some:
             print(format_row(r), flush=True)
-
-    if a.jobs == 1 or len(names) == 1:
-        for name in names:
-            finished(name, run_body(name, conds, a.resolution, params))
-    else:
-        import multiprocessing
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-
-        with ProcessPoolExecutor(max_workers=min(a.jobs, len(names)),
-                                 mp_context=multiprocessing.get_context("spawn")) as pool:
-            futures = {pool.submit(run_body, name, conds, a.resolution, params): name for name in names}
-            for f in as_completed(futures):
-                finished(futures[f], f.result())
     rows = [r for name in names for r in done[name]]
     for r in rows:
         if r["outcome"] == "refused":

@@ -259,10 +259,10 @@ def pelvis_by_crotch(joints: dict, secs: dict, points, body: StandardBody) -> di
 
     The pelvis and the hips ride with the waist column's lower end, which the volume and the points
     pin poorly along the torso's axis (the pelvis is the torso's worst-placed landmark there). The
-    crotch is a second, independent estimate of the same height: on the tune corpus the two err
-    alike (3.0 and 2.7 cm sd along the axis) and uncorrelated, so their mean about halves the
-    variance. The pelvis and the hips are one bone and move together; the seams (the clustering's
-    planes) are not moved. Unchanged when no crotch is found (hips flexed, a leg missing).
+    crotch is a second, independent estimate of the same height, about as good (on the tune
+    corpus), so their mean is better than either. The pelvis and the hips are one bone and move
+    together; the seams (the clustering's planes) are not moved. Unchanged when no crotch is found
+    (hips flexed, a leg missing).
 
     Parameters
     ----------
