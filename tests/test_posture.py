@@ -1055,22 +1055,26 @@ def test_lower_legs_seen_from_the_side_stay_on_their_points():
     assert np.linalg.norm(turned.end - shank.end) < np.linalg.norm(off.end - shank.end) - 0.03
 
 
+def _torso_points(bottom_z, spacing):
+    """Points of an elliptic column (radii 0.16 across, 0.11 front to back) from ``bottom_z`` to
+    1.3 m, closed at the bottom."""
+    A, Z = np.meshgrid(np.linspace(0, 2 * np.pi, 120, endpoint=False), np.arange(bottom_z, 1.3, spacing))
+    torso = np.column_stack([0.16 * np.cos(A.ravel()), 0.11 * np.sin(A.ravel()), Z.ravel()])
+    gx, gy = np.meshgrid(np.arange(-0.16, 0.16, spacing), np.arange(-0.11, 0.11, spacing))
+    inside = (gx / 0.16) ** 2 + (gy / 0.11) ** 2 < 1
+    return np.vstack([torso, np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), bottom_z)])])
+
+
 def _crotch_scene(crotch_z=0.80, spacing=0.01):
     """Points of a torso (elliptic column closed at the crotch height) over two legs held apart,
     and a fit whose thighs start 15 cm above the crotch."""
     x = np.array([1.0, 0, 0])
     ang = np.linspace(0, 2 * np.pi, 120, endpoint=False)
-    z = np.arange(crotch_z, 1.3, spacing)
-    A, Z = np.meshgrid(ang, z)
-    torso = np.column_stack([0.16 * np.cos(A.ravel()), 0.11 * np.sin(A.ravel()), Z.ravel()])
-    gx, gy = np.meshgrid(np.arange(-0.16, 0.16, spacing), np.arange(-0.11, 0.11, spacing))
-    inside = (gx / 0.16) ** 2 + (gy / 0.11) ** 2 < 1
-    bottom = np.column_stack([gx[inside], gy[inside], np.full(inside.sum(), crotch_z)])
     legs = []
     for cx in (0.1, -0.1):
         a2, z2 = np.meshgrid(ang, np.arange(0.0, crotch_z + 0.05, spacing))
         legs.append(np.column_stack([cx + 0.07 * np.cos(a2.ravel()), 0.07 * np.sin(a2.ravel()), z2.ravel()]))
-    points = np.vstack([torso, bottom] + legs)
+    points = np.vstack([_torso_points(crotch_z, spacing)] + legs)
     top = crotch_z + 0.15
     secs = {"waist": SectionShape("waist", [0, 0, top], [0, 0, 1.2], [0.16, 0.11], x),
             "thigh_l": SectionShape("thigh_l", [0.1, 0, top], [0.1, 0, top - 0.45], [0.07, 0.07], x),
@@ -1107,18 +1111,19 @@ def test_split_hips_lowers_thighs_to_the_crotch():
     assert all(np.allclose(split_hips(points, flexed)[k].start, flexed[k].start) for k in ("thigh_l", "thigh_r"))
 
 
-def test_pelvis_by_crotch_meets_the_crotch_halfway():
+def test_pelvis_from_below_meets_the_crotch_halfway():
     """A waist fitted 15 cm above a crotch at 0.80 m: the pelvis and both hips move up the waist's
     axis halfway to PELVIS_ABOVE_CROTCH statures above the crotch, the other joints stay; flexed
-    hips (no crotch) leave every joint where it was."""
+    thighs over legs that go on down (no crotch sought, no seat: the column does not end) leave
+    every joint where it was."""
     from bodyscan.recon.posture.bodymodel import PELVIS_ABOVE_CROTCH, StandardBody
-    from bodyscan.recon.posture.joints import pelvis_by_crotch
+    from bodyscan.recon.posture.joints import pelvis_from_below
 
     points, secs = _crotch_scene(0.80)
-    body = StandardBody(1.70)
+    body, back = StandardBody(1.70), np.array([0.0, 1.0, 0.0])
     joints = {"pelvis": np.array([0.0, 0.02, 0.95]), "hip_l": np.array([0.1, 0.0, 0.94]),
               "hip_r": np.array([-0.1, 0.0, 0.94]), "knee_l": np.array([0.1, 0.0, 0.5])}
-    out = pelvis_by_crotch(joints, secs, points, body)
+    out = pelvis_from_below(joints, secs, points, body, back)
     want = 0.5 * ((0.80 + PELVIS_ABOVE_CROTCH * 1.70) - 0.95)          # the crotch at 0.80 m (found within 6 mm)
     for k in ("pelvis", "hip_l", "hip_r"):
         assert out[k][2] - joints[k][2] == pytest.approx(want, abs=0.003)
@@ -1127,7 +1132,53 @@ def test_pelvis_by_crotch_meets_the_crotch_halfway():
     x = np.array([1.0, 0, 0])
     flexed = {**secs, **{f"thigh_{s}": SectionShape(f"thigh_{s}", [c, 0, 0.95], [c, -0.45, 0.95], [0.07, 0.07], x)
                          for s, c in (("l", 0.1), ("r", -0.1))}}
-    assert all(np.array_equal(v, joints[k]) for k, v in pelvis_by_crotch(joints, flexed, points, body).items())
+    assert all(np.array_equal(v, joints[k]) for k, v in pelvis_from_below(joints, flexed, points, body, back).items())
+
+
+def _seated_scene(seat_z=0.55, spacing=0.01):
+    """Points of a seated torso (elliptic column closed at the seat height) with two thighs leaving
+    forward (-y) at 0.60 m and nothing below, and a fit whose waist starts 17 cm above the seat."""
+    x = np.array([1.0, 0, 0])
+    ang = np.linspace(0, 2 * np.pi, 120, endpoint=False)
+    thighs = []
+    for cx in (0.1, -0.1):
+        a2, y2 = np.meshgrid(ang, np.arange(-0.5, -0.11, spacing))
+        thighs.append(np.column_stack([cx + 0.07 * np.cos(a2.ravel()), y2.ravel(), 0.60 + 0.07 * np.sin(a2.ravel())]))
+    points = np.vstack([_torso_points(seat_z, spacing)] + thighs)
+    secs = {"waist": SectionShape("waist", [0, 0, seat_z + 0.17], [0, 0, 1.2], [0.16, 0.11], x)}
+    for s, cx in (("l", 0.1), ("r", -0.1)):
+        secs[f"thigh_{s}"] = SectionShape(f"thigh_{s}", [cx, -0.08, 0.60], [cx, -0.5, 0.60], [0.07, 0.07], x)
+    return points, secs
+
+
+def test_find_seat_under_flexed_hips():
+    """Seated, the seat is the bottom of the torso seen behind the waist's axis; a thigh held down
+    (the legs' line, where the crotch is sought) finds none."""
+    from bodyscan.recon.posture.joints import find_seat
+
+    points, secs = _seated_scene(0.55)
+    back = np.array([0.0, 1.0, 0.0])
+    seat = find_seat(points, secs, back, 1.70)
+    assert seat is not None and seat[2] == pytest.approx(0.55, abs=1e-9) and seat[1] > 0
+    down = {**secs, "thigh_r": SectionShape("thigh_r", [-0.1, 0, 0.6], [-0.1, 0, 0.15], [0.07, 0.07],
+                                            np.array([1.0, 0, 0]))}
+    assert find_seat(points, down, back, 1.70) is None
+
+
+def test_pelvis_from_below_sits_on_the_seat():
+    """A seated waist fitted 17 cm above the seat: the pelvis and both hips move down the waist's
+    axis to their heights above the seat (ABOVE_SEAT statures); the other joints stay."""
+    from bodyscan.recon.posture.bodymodel import ABOVE_SEAT, StandardBody
+    from bodyscan.recon.posture.joints import pelvis_from_below
+
+    points, secs = _seated_scene(0.55)
+    joints = {"pelvis": np.array([0.0, 0.02, 0.72]), "hip_l": np.array([0.1, 0.0, 0.71]),
+              "hip_r": np.array([-0.1, 0.0, 0.71]), "knee_l": np.array([0.1, -0.45, 0.6])}
+    out = pelvis_from_below(joints, secs, points, StandardBody(1.70), np.array([0.0, 1.0, 0.0]))
+    for k in ("pelvis", "hip_l", "hip_r"):
+        assert out[k][2] == pytest.approx(0.55 + ABOVE_SEAT[k.split("_")[0]] * 1.70, abs=1e-6)
+        assert np.allclose(out[k][:2], joints[k][:2])
+    assert np.array_equal(out["knee_l"], joints["knee_l"])
 
 
 def _torso_scene():

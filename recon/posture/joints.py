@@ -15,9 +15,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import (CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, JOINT_OFFSET, KNEE_SPLIT, LIMBS,
-                        LOWER_LEG_SHAPE, PELVIS_ABOVE_CROTCH, SHOULDER_CAP, SPINE_BACK, STATURE, TORSO_SPLIT,
-                        TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE, StandardBody, kind_of)
+from .bodymodel import (ABOVE_SEAT, CROTCH_SPLIT, CROTCH_STRIP, HIP_OFFSET, JOINT_CAP, JOINT_OFFSET, KNEE_SPLIT,
+                        LIMBS, LOWER_LEG_SHAPE, PELVIS_ABOVE_CROTCH, SEAT_STRIP, SEAT_WINDOW, SHOULDER_CAP,
+                        SPINE_BACK, STATURE, TORSO_SPLIT, TORSO_SPLIT_CROTCH, TORSO_SPLIT_RANGE, UPPER_ARM_SHAPE,
+                        StandardBody, kind_of)
 from ..geometry import cross, turn_between, unit
 from ..model import SectionShape
 
@@ -232,8 +233,8 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
     """The joints, by name (`recon.model.BodyFit.joints`): found on the sections' ends and axes as
     for `place_seams` (without its spine and hip offsets: a straight leg's knee is closed from the
     thigh's top), then moved to where the rig's joints lie relative to their sections
-    (``offsets``, `offset_joints`); with ``points``, the pelvis and hips halfway to the height the
-    crotch seen gives them (`pelvis_by_crotch`).
+    (``offsets``, `offset_joints`); with ``points``, the pelvis and hips toward the height the
+    crotch or the seat seen gives them (`pelvis_from_below`).
 
     Parameters
     ----------
@@ -249,40 +250,50 @@ def place_joints(secs: dict, body: StandardBody, back: np.ndarray, points=None, 
     """
     joints = offset_joints(_on_sections(secs, body, back, points, arm_tolerance, seam=False), secs, back,
                            body.stature, offsets)
-    return joints if points is None else pelvis_by_crotch(joints, secs, points, body)
+    return joints if points is None else pelvis_from_below(joints, secs, points, body, back)
 
 
-def pelvis_by_crotch(joints: dict, secs: dict, points, body: StandardBody) -> dict:
-    """The pelvis and hip joints moved along the waist's axis halfway to the height the crotch seen
-    in the points gives them (`find_crotch`, plus `recon.posture.bodymodel.PELVIS_ABOVE_CROTCH`
-    statures).
+def pelvis_from_below(joints: dict, secs: dict, points, body: StandardBody, back: np.ndarray) -> dict:
+    """The pelvis and hip joints moved along the waist's axis by the body's lowest trunk point seen:
+    halfway to `recon.posture.bodymodel.PELVIS_ABOVE_CROTCH` statures above the crotch
+    (`find_crotch`) between legs held down, or to their own heights above the seat (`find_seat`,
+    `recon.posture.bodymodel.ABOVE_SEAT`) behind flexed hips.
 
-    The pelvis and the hips ride with the waist column's lower end, which the volume and the points
-    pin poorly along the torso's axis (the pelvis is the torso's worst-placed landmark there). The
-    crotch is a second, independent estimate of the same height, about as good (on the tune
-    corpus), so their mean is better than either. The pelvis and the hips are one bone and move
-    together; the seams (the clustering's planes) are not moved. Unchanged when no crotch is found
-    (hips flexed, a leg missing).
+    The pelvis and the hips ride with the waist column's lower end and the thighs' tops, which the
+    volume and the points pin poorly along the torso's axis. Standing, the crotch is a second
+    estimate about as good, so the two are averaged (the pelvis and the hips move as one bone);
+    seated or squatting, where the column runs on into the buttocks, the seat is several times
+    better (on the tune corpus) and replaces them. The seams (the clustering's planes) are not
+    moved. Unchanged when neither is found.
 
     Parameters
     ----------
     joints : dict of (3,) float
         The reported joints (`place_joints`).
     secs : dict of SectionShape
-        The fitted sections, with the waist and both thighs for a crotch to be found.
+        The fitted sections: the waist, and the thighs for either landmark to be sought.
     points : (n, 3) float
     body : StandardBody
+    back : (3,) float
+        The subject's backward direction.
 
     Returns
     -------
     dict of (3,) float
     """
-    crotch = find_crotch(points, secs)
-    if crotch is None or "pelvis" not in joints:
+    if "pelvis" not in joints or "waist" not in secs:
         return joints
     up = secs["waist"].axis
-    shift = 0.5 * float((crotch + PELVIS_ABOVE_CROTCH * body.stature * up - joints["pelvis"]) @ up)
-    return {k: v + shift * up if k in ("pelvis", "hip_l", "hip_r") else v for k, v in joints.items()}
+    moved = ("pelvis", "hip_l", "hip_r")
+    crotch = find_crotch(points, secs)
+    if crotch is not None:
+        shift = 0.5 * float((crotch + PELVIS_ABOVE_CROTCH * body.stature * up - joints["pelvis"]) @ up)
+        return {k: v + shift * up if k in moved else v for k, v in joints.items()}
+    seat = find_seat(points, secs, back, body.stature)
+    if seat is None:
+        return joints
+    return {k: v + (float((seat - v) @ up) + ABOVE_SEAT[k.split("_")[0]] * body.stature) * up if k in moved else v
+            for k, v in joints.items()}
 
 
 def _on_sections(secs: dict, body: StandardBody, back: np.ndarray, points, arm_tolerance: float,
@@ -753,6 +764,59 @@ def find_crotch(points, secs: dict, strip: float = CROTCH_STRIP,
     if sel.sum() < 5:
         return None
     return np.asarray(points, dtype=float)[np.flatnonzero(sel)[np.argmax(t[sel])]]
+
+
+def find_seat(points, secs: dict, back: np.ndarray, stature: float, window: tuple = SEAT_WINDOW,
+              strip: float = SEAT_STRIP, step: float = 0.03,
+              max_flex_deg: float = CROTCH_MAX_FLEX_DEG) -> np.ndarray | None:
+    """The seat seen in the points with the hips flexed: the lowest point of the buttocks, where
+    the trunk's back ends with nothing below it.
+
+    It is sought in the column behind the waist's axis, within ``strip`` times the waist's larger
+    radius of its mid-plane, over ``window`` statures along the axis from the waist's lower end:
+    the lowest of the points seen there from the top down to the first empty ``step`` (metres),
+    with none below that step.
+    Seated or squatting, the thighs leave forward and nothing of the body lies under the buttocks;
+    standing, the backs of the thighs continue the column and no seat is found.
+
+    Parameters
+    ----------
+    points : (n, 3) float, metres
+    secs : dict of SectionShape
+        With the waist and at least one thigh.
+    back : (3,) float
+        The subject's backward direction.
+    stature : float
+        The fitted body's stature, metres.
+
+    Returns
+    -------
+    seat : (3,) float or None
+        None without the waist or a thigh, with a fitted thigh within ``max_flex_deg`` of the
+        waist's downward axis (legs held down: `find_crotch`), or with no end to the column.
+    """
+    thighs = [secs[n] for n in ("thigh_l", "thigh_r") if n in secs]
+    if "waist" not in secs or not thighs:
+        return None
+    w = secs["waist"]
+    up = w.axis
+    if any(float(t.axis @ -up) > np.cos(np.radians(max_flex_deg)) for t in thighs):
+        return None
+    b = unit(back - up * float(back @ up))
+    points = np.asarray(points, dtype=float)
+    q = points - w.start
+    h = q @ up
+    lo, hi = window[0] * stature, window[1] * stature
+    reach = float(w.radii.max())
+    sel = np.flatnonzero((np.abs(q @ cross(up, b)) < strip * reach) & (q @ b > 0) & (q @ b < 1.5 * reach)
+                        & (h > lo) & (h < hi))
+    if len(sel) < 5:
+        return None
+    k = np.floor((hi - h[sel]) / step).astype(int)        # steps down from the window's top
+    empty = np.flatnonzero(np.bincount(k, minlength=k.max() + 2) == 0)[0]
+    if empty == 0 or (empty + 1) * step > hi - lo or (k > empty).any():
+        return None                                         # no top, no end, or more body below
+    return points[sel[np.argmin(h[sel])]]
 
 
 def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
