@@ -190,3 +190,19 @@ def test_a_leg_chain_running_across_the_body_is_found(foot_x, across):
                 v.replace(start=v.start * [-1, 1, 1], end=v.end * [-1, 1, 1]) for k, v in secs.items()}
     assert _leg_across("lower_leg_r", mirrored, 0.25) is across
     assert _leg_across("lower_leg_r", secs, 0.25) is False   # no right lower leg: nothing to say
+
+
+@pytest.mark.parametrize("hip, knee, up", [(0, 0, False), (100, 75, False), (85, 0, False), (110, 55, False),
+                                           (100, 0, True), (120, 20, True), (150, 40, True)])
+def test_a_lower_leg_above_the_horizontal_is_found(hip, knee, up):
+    """`recon.posture.fit._shank_up`: a sagittal leg with the hip flexed ``hip`` and the knee bent
+    ``knee`` degrees points its shank ``hip - knee`` degrees from straight down, the ankle above the
+    knee beyond 90; the same with the torso's frame turned about the vertical."""
+    from bodyscan.recon.posture.fit import _shank_up
+
+    a = np.radians(hip - knee)
+    d = np.array([0.0, -np.sin(a), -np.cos(a)])          # the subject faces -y
+    assert _shank_up(d, np.eye(3)) is up
+    c, s = np.cos(np.radians(70)), np.sin(np.radians(70))
+    turn = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    assert _shank_up(turn @ d, turn) is up

@@ -179,7 +179,8 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    front and above, encloses no inside voxels). An upper arm raising its elbow behind the
    shoulder (pointing up, and more backwards than sideways or upwards: not anatomy) was fitted onto
    the shoulder of a misplaced torso and is listed, and so is a thigh pointing up within 60 degrees
-   of the torso's axis (a hip flexed past its active range), and a lower leg whose chain, thigh's
+   of the torso's axis (a hip flexed past its active range), a lower leg pointing above the
+   horizontal (`_shank_up`: the ankle above the knee), and a lower leg whose chain, thigh's
    start to sole, runs across the body more than `match_max_adduction` of its length (`_leg_across`:
    the match searches no such chain; a lower leg cut from the scan was dragged onto the other
    knee). A fit whose sections (all placed ones) explain fewer than
@@ -536,6 +537,7 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
     unfitted = tuple(n for n in SECTIONS if unseen(n)
                      or (kind_of(n) == "upper_arm" and _arm_behind(secs[n].axis, pose.R, back))
                      or (kind_of(n) == "thigh" and _thigh_up(secs[n].axis, pose.R))
+                     or (kind_of(n) == "lower_leg" and _shank_up(secs[n].axis, pose.R))
                      or (kind_of(n) == "lower_leg" and _leg_across(n, secs, params.match_max_adduction))
                      or not np.isfinite(resid.get(n, np.nan))
                      or (kind_of(n) in ("upper_arm", "forearm")
@@ -637,6 +639,15 @@ def _thigh_up(d: np.ndarray, R: np.ndarray) -> bool:
     flexion, a squat, is 102). Such a thigh was fitted onto the torso or an arm: a seated body at
     20 mm came out with a thigh up the chest (54 degrees from a tilted torso's axis), 46 cm off."""
     return float(d @ R[:, 2]) > 0.5
+
+
+def _shank_up(d: np.ndarray, R: np.ndarray) -> bool:
+    """Whether a lower leg along ``d`` (3,), knee to ankle, points above the horizontal (``R``'s
+    third column up): the ankle above the knee needs the hip flexed more than 90 degrees plus the
+    knee's bend, beyond a straight leg's raise. Such a lower leg was fitted onto an arm: seated
+    bodies whose thigh was not found came out with a lower leg up the hanging arm, ankle 1.2-1.4 m
+    off, not listed."""
+    return float(d @ R[:, 2]) > 0.0
 
 
 def _leg_across(name: str, secs: dict, max_adduction: float) -> bool:
