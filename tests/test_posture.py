@@ -1153,7 +1153,7 @@ def _seated_scene(seat_z=0.55, spacing=0.01):
 
 def test_find_seat_under_flexed_hips():
     """Seated, the seat is the bottom of the torso seen behind the waist's axis; a thigh held down
-    (the legs' line, where the crotch is sought) finds none."""
+    (the legs' line, where the crotch is sought), or a knee under the hips, finds none."""
     from bodyscan.recon.posture.joints import find_seat
 
     points, secs = _seated_scene(0.55)
@@ -1163,6 +1163,15 @@ def test_find_seat_under_flexed_hips():
     down = {**secs, "thigh_r": SectionShape("thigh_r", [-0.1, 0, 0.6], [-0.1, 0, 0.15], [0.07, 0.07],
                                             np.array([1.0, 0, 0]))}
     assert find_seat(points, down, back, 1.70) is None
+    # without the thighs, the knees (the lower legs' starts) show the flexion: forward, a seat;
+    # under the hips, none
+    x = np.array([1.0, 0, 0])
+    shins = {"waist": secs["waist"]}
+    for s, c in (("l", 0.1), ("r", -0.1)):
+        shins[f"lower_leg_{s}"] = SectionShape(f"lower_leg_{s}", [c, -0.5, 0.6], [c, -0.5, 0.15], [0.05, 0.05], x)
+    assert np.allclose(find_seat(points, shins, back, 1.70), seat)
+    hanging = {**shins, "lower_leg_r": SectionShape("lower_leg_r", [-0.1, 0, 0.3], [-0.1, 0, -0.1], [0.05, 0.05], x)}
+    assert find_seat(points, hanging, back, 1.70) is None
 
 
 def test_pelvis_from_below_sits_on_the_seat():

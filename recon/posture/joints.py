@@ -783,7 +783,8 @@ def find_seat(points, secs: dict, back: np.ndarray, stature: float, window: tupl
     ----------
     points : (n, 3) float, metres
     secs : dict of SectionShape
-        With the waist and at least one thigh.
+        With the waist and at least one leg: a thigh, or without it the lower leg, whose start
+        (the knee) shows the hip's flexion from the waist's lower end.
     back : (3,) float
         The subject's backward direction.
     stature : float
@@ -792,15 +793,16 @@ def find_seat(points, secs: dict, back: np.ndarray, stature: float, window: tupl
     Returns
     -------
     seat : (3,) float or None
-        None without the waist or a thigh, with a fitted thigh within ``max_flex_deg`` of the
+        None without the waist or a leg, with a leg (its thigh) within ``max_flex_deg`` of the
         waist's downward axis (legs held down: `find_crotch`), or with no end to the column.
     """
-    thighs = [secs[n] for n in ("thigh_l", "thigh_r") if n in secs]
-    if "waist" not in secs or not thighs:
+    if "waist" not in secs:
         return None
     w = secs["waist"]
     up = w.axis
-    if any(float(t.axis @ -up) > np.cos(np.radians(max_flex_deg)) for t in thighs):
+    legs = [secs[f"thigh_{s}"].axis if f"thigh_{s}" in secs else unit(secs[f"lower_leg_{s}"].start - w.start)
+            for s in "lr" if f"thigh_{s}" in secs or f"lower_leg_{s}" in secs]
+    if not legs or any(float(d @ -up) > np.cos(np.radians(max_flex_deg)) for d in legs):
         return None
     b = unit(back - up * float(back @ up))
     points = np.asarray(points, dtype=float)
