@@ -155,16 +155,13 @@ PELVIS_ABOVE_CROTCH = 0.052
 #: How far the rig's pelvis and hip joints lie above the seat seen in the points with the hips
 #: flexed (`recon.posture.joints.find_seat`: the lowest point of the buttocks), along the waist's
 #: axis, in statures (`recon.posture.joints.pelvis_from_below`): the medians over the tune corpus's
-#: fits with every fitted thigh flexed and no crotch (seed 0, bodies 0-61, and seed 1's seated,
-#: squatting and knee-raised bodies; paper 10 mm, k = 1-3 and turned; 45 fits, the pelvis's
-#: 10-90 % 0.038-0.066, the hips' sd 0.010). On the 10 fits without a thigh (knees forward) the
-#: seat put the pelvis within 4.6 cm, the waist's end within 8.6.
+#: fits with the hips flexed and no crotch.
 ABOVE_SEAT = dict(pelvis=0.052, hip=0.046)
 
 #: Where the seat is sought (`recon.posture.joints.find_seat`): along the waist's axis, from its
-#: lower end, in statures (the seat lay 0.00-0.13 statures below that end on the tune fits above),
-#: and across it, within this fraction of the waist's larger radius of its mid-plane (chosen: 0.3
-#: and 0.8 each put one of the 45 fits' pelvis over 10 cm off; 0.5 none).
+#: lower end, in statures (wide enough for a waist's end 10 cm off), and across it, within this
+#: fraction of the waist's larger radius of its mid-plane (between the buttocks' cleft and the
+#: thighs' sides; chosen on the tune corpus).
 SEAT_WINDOW = (-0.15, 0.05)
 SEAT_STRIP = 0.5
 

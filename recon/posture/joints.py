@@ -271,7 +271,7 @@ def pelvis_from_below(joints: dict, secs: dict, points, body: StandardBody, back
     joints : dict of (3,) float
         The reported joints (`place_joints`).
     secs : dict of SectionShape
-        The fitted sections: the waist, and the thighs for either landmark to be sought.
+        The fitted sections: the waist, and the legs for either landmark to be sought.
     points : (n, 3) float
     body : StandardBody
     back : (3,) float
