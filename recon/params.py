@@ -301,8 +301,9 @@ class SurfaceParams:
         from a neighbour (``adopt_unlabeled``: fingers, toes). False, as in the paper, which
         clusters, and so meshes, only points within T_d: they keep their labels but are in no face.
     workers : int
-        Threads triangulating the sections in parallel (numpy and Qhull release the GIL); the
-        result does not depend on it. 1: one after another.
+        Threads triangulating the sections in parallel (numpy and Qhull release the GIL), and of
+        the closed surface's KD-tree queries; the result does not depend on it. 1: one after
+        another.
     open_joints : bool
         Project a section's proximal end, where it joins its parent section at a joint, onto the
         extended column instead of a cap (paper 3.3 does so for open ends): its surface then ends
@@ -485,7 +486,7 @@ class SurfaceParams:
     open_joint_ends: bool = field(default=True,  # paper silent
         metadata={"help": "leave a section's end open where a child section continues it", "unit": "", "range": None})
     workers: int = field(default=2,  # not a method parameter: speed only
-        metadata={"help": "threads triangulating the sections in parallel (speed only, same result)", "unit": "", "range": (1, 256)})
+        metadata={"help": "threads triangulating the sections, and of the closed surface's KD-tree queries (speed only, same result)", "unit": "", "range": (1, 256)})
     inner_depth: float = field(default=0.15,  # paper 3.3 (inner triangles), widths
         metadata={"help": "remove triangles deeper than this inside an adjacent section's model (0 = off)", "unit": "widths", "range": (0, 10)})
     fold_cos: float = field(default=0.0,  # paper: none (-1 = off); chosen, see above

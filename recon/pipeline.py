@@ -468,7 +468,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
                                               sp.close_cell, sp.close_envelope,
                                               sp.close_band, (vertices, faces, face_section),
                                               view, sp.close_carve, sp.close_background,
-                                              sp.close_smooth)
+                                              sp.close_smooth, sp.workers)
         vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start

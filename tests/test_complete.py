@@ -408,6 +408,10 @@ def test_the_closed_surface_has_no_cavity_inside_the_body():
     c = v[f].mean(axis=1)
     mid = (c[:, 2] > 0.05) & (c[:, 2] < 0.35)
     assert np.abs(truth.coords(c[mid])[0]).max() < 0.001
+    # the band's KD-tree queries in two threads: the same surface, to the bit
+    v2, f2, _ = closed_surface(P, [(SECTIONS.index("thigh_l"), np.arange(len(P)), truth)], spacing, seen=seen,
+                               workers=2)
+    assert np.array_equal(v2, v) and np.array_equal(f2, f)
 
 
 def test_a_foot_seen_from_above_rests_its_sole_on_the_floor():

@@ -309,7 +309,7 @@ def seen_index(vertices: np.ndarray, faces: np.ndarray):
 
 def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spacing: float, k: int = 8,
                   reach: float = np.inf, exact: float = np.inf, beside_max: float = np.inf, index=None,
-                  nearest=None):
+                  nearest=None, workers: int = 1):
     """Signed distance to the seen surface (the open mesh), and how far ``at`` lies beside it.
 
     Parameters
@@ -348,11 +348,13 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     nearest : ((m,) float, (m,) int), optional
         The nearest vertex's distance (inf beyond ``reach``) and index into ``index``'s vertices,
         as ``index``'s tree answers a query bounded by ``reach`` (queried here without it).
+    workers : int
+        Threads of the KD-tree's queries (the same answers with any number).
     """
     used, vpn, tree = seen_index(vertices, faces) if index is None else index
     k = min(k, len(used))
     dist, beside, vertex = np.full(len(at), np.nan), np.full(len(at), np.inf), np.zeros(len(at), dtype=np.int64)
-    d0, i0 = tree.query(at, 1, distance_upper_bound=reach) if nearest is None else nearest
+    d0, i0 = tree.query(at, 1, distance_upper_bound=reach, workers=workers) if nearest is None else nearest
     near = np.flatnonzero(np.isfinite(d0))
     d0, i0 = d0[near], i0[near]
     pn0 = vpn.take(i0, axis=0)     # (take: a faster gather of rows than indexing)
@@ -364,7 +366,7 @@ def seen_distance(vertices: np.ndarray, faces: np.ndarray, at: np.ndarray, spaci
     for s in range(0, len(fine) if k > 1 else 0, CHUNK):   # in chunks: the (m, k, 6) gathers stay in cache
         f = fine[s:s + CHUNK]
         a = at.take(f, axis=0)
-        d, i = tree.query(a, k)
+        d, i = tree.query(a, k, workers=workers)
         pn = vpn.take(i, axis=0)     # (m, k, 6): one gather of the positions and normals
         along = np.einsum("mkj,mkj->mk", a[:, None, :] - pn[..., :3], pn[..., 3:])
         w = np.exp(-(d / spacing) ** 2) + 1e-300
@@ -394,7 +396,8 @@ SLACK = 1.0
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
-                   view=None, carve: float = 1.0, background: float = 0.5, smooth: int = 3):
+                   view=None, carve: float = 1.0, background: float = 0.5, smooth: int = 3,
+                   workers: int = 1):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching cubes.
 
@@ -436,6 +439,9 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         Taubin's smoothing steps (each a shrink and an inflate; 0 = off) on the marching-cubes
         surface: they take out the grid's facets (a face's normal off the smooth surface's by
         up to the angle of one grid step) without shrinking it.
+    workers : int
+        Threads of the KD-tree queries over the seen surface's band (speed only: the same surface
+        with any number).
 
     Returns
     -------
@@ -487,7 +493,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         np.copyto(F[box], val, where=better)
         lab[box][better] = j
     if seen is not None and band > 0:
-        _seen_band(F, lab, lo, voxel, spacing, band, *seen)
+        _seen_band(F, lab, lo, voxel, spacing, band, *seen, workers=workers)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
         flat = np.flatnonzero(F > -voxel)
         cams = Views(points, view[0], view[1], spacing)
@@ -522,7 +528,7 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     return vertices, faces, face_label.astype(np.int8)
 
 
-def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
+def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section, workers: int = 1):
     """Overwrite ``F`` (and ``lab``) in the seen surface's band with the signed distance to the
     open mesh (`seen_distance`), blended into the solids' value past its rims, in place.
 
@@ -561,7 +567,7 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     # limits below): the query need not look farther
     slack = SLACK * margin
     kept_max = np.hypot(band * spacing + slack, BAND_BLEND * spacing + slack) * (1 + 1e-9)
-    dc, ic = tree.query(at, 1, distance_upper_bound=min(reach_m + 2 * margin, kept_max))
+    dc, ic = tree.query(at, 1, distance_upper_bound=min(reach_m + 2 * margin, kept_max), workers=workers)
     along, beside, _ = seen_distance(vertices, faces, at, spacing, k=1, reach=reach_m + 2 * margin,
                                      index=index, nearest=(dc, ic))
     keep = np.flatnonzero((along > -band * spacing - slack) & (along < 0.5 * band * spacing + slack)
@@ -586,10 +592,11 @@ def _seen_band(F, lab, lo, voxel, spacing, band, vertices, faces, face_section):
     d0[within], i0[within] = dc[parent[within]], ic[parent[within]]
     ask = ~own
     at = lo + voxel * g
-    d0[ask], i0[ask] = tree.query(at.take(np.flatnonzero(ask), axis=0), 1, distance_upper_bound=reach_m)
+    d0[ask], i0[ask] = tree.query(at.take(np.flatnonzero(ask), axis=0), 1, distance_upper_bound=reach_m,
+                                  workers=workers)
     dist, beside, v = seen_distance(vertices, faces, at, spacing, reach=reach_m,
                                     exact=EXACT * voxel, beside_max=BAND_BLEND * spacing, index=index,
-                                    nearest=(d0, i0))
+                                    nearest=(d0, i0), workers=workers)
     w = np.clip((BAND_BLEND * spacing - beside) / ((BAND_BLEND - BAND_BESIDE) * spacing), 0, 1)
     over = (w > 0) & np.isfinite(dist) & (dist > -band * spacing) & (dist < 0.5 * band * spacing)
     flat, w = flat[over], w[over]
