@@ -108,6 +108,10 @@ def test_missing_file_and_unknown_type(tmp_path):
     (tmp_path / "x.obj2").write_text("1 2 3\n")
     with pytest.raises(ReconError, match="unknown cloud file type"):
         read_cloud(tmp_path / "x.obj2")
+    # a body file given where a scan is wanted: the message says how to scan it
+    (tmp_path / "body.npz").write_bytes(b"PK")
+    with pytest.raises(ReconError, match="a body file is scanned first: bodyscan scan .*body.npz --out CLOUD.ply"):
+        read_cloud(tmp_path / "body.npz")
 
 
 def test_recon_never_names_ground_truth_fields():
