@@ -120,11 +120,9 @@ def read_cloud(path) -> Cloud:
             points, view, meta = _read_text(path), None, {}
         elif suffix == ".pcd":
             points, view, meta = _read_pcd(path), None, {}
-        elif suffix == ".npz":   # most likely a body of the pose library or a corpus: a mesh, not a scan
-            raise ReconError(f"{path}: not a cloud file type (use .ply, .xyz, .txt or .pcd); a body file "
-                             f"is scanned first: bodyscan scan {path} --out CLOUD.ply")
-        else:
-            raise ReconError(f"{path}: unknown cloud file type {suffix!r} (use .ply, .xyz, .txt or .pcd)")
+        else:   # a .npz is most likely a body of the pose library or a corpus: a mesh, not a scan
+            hint = f"; a body file is scanned first: bodyscan scan {path} --out CLOUD.ply" if suffix == ".npz" else ""
+            raise ReconError(f"{path}: unknown cloud file type {suffix!r} (use .ply, .xyz, .txt or .pcd){hint}")
     except ReconError:
         raise
     except Exception as exc:  # any parser failure means "not a readable cloud"
