@@ -1098,8 +1098,8 @@ class ReconParams:
         changes: dict = {stage: {} for stage in stages}
         for name, value in (overrides or {}).items():
             if name not in owner:
-                known = ", ".join(sorted(owner))
-                raise ReconError(f"unknown parameter {name!r} (known: {known})")
+                raise ReconError(f"unknown parameter {name!r}{_did_you_mean(name, owner)} (`bodyscan "
+                                 f"reconstruct --param help` lists all {len(owner)}, by stage)")
             stage = owner[name]
             changes[stage][name] = coerce(_field(type(stages[stage]), name), value, ReconError)
         built = {}
@@ -1128,3 +1128,20 @@ def stage_help(stages=("fit", "clean", "cluster", "surface")) -> str:
 def _field(cls, name):
     """The dataclass field ``name`` of ``cls``."""
     return next(f for f in fields(cls) if f.name == name)
+
+
+def _did_you_mean(name: str, known) -> str:
+    """``"; did you mean 'a' or 'b'?"``: the known names nearest to a mistyped one (those it
+    begins or is part of, then the most alike; a stage prefix such as ``surface.`` dropped), or
+    ``""``."""
+    import difflib
+
+    bare = name.rsplit(".", 1)[-1].strip().lower()
+    known = sorted(known)
+    if bare in known:
+        return f"; the names take no stage prefix: {bare!r}"
+    near = [k for k in known if bare and k.startswith(bare)]
+    near += difflib.get_close_matches(bare, known, n=3, cutoff=0.6)
+    near += [k for k in known if bare and bare in k]
+    near = list(dict.fromkeys(near))[:3]
+    return f"; did you mean {' or '.join(repr(k) for k in near)}?" if near else ""

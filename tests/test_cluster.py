@@ -137,8 +137,15 @@ def test_neighbor_radius_follows_the_spacing():
 def test_params_overrides_resolve_names_and_reject_bad_ones():
     p = ReconParams.from_overrides({"t_d": "0.25", "mesh_theta": 12, "max_edge_factor": "3"})
     assert p.cluster.t_d == 0.25 and p.cluster.mesh_theta == 12 and p.surface.max_edge_factor == 3.0
-    with pytest.raises(ReconError, match="unknown parameter 'td'"):
+    with pytest.raises(ReconError, match="unknown parameter 'td'; did you mean 't_d'") as err:
         ReconParams.from_overrides({"td": 0.3})
+    assert "mesh_theta" not in str(err.value)    # the nearest names, not all of them
+    with pytest.raises(ReconError, match="did you mean 'close_voxel'"):
+        ReconParams.from_overrides({"close_voxl": 0.01})
+    with pytest.raises(ReconError, match="no stage prefix: 'close_voxel'"):
+        ReconParams.from_overrides({"surface.close_voxel": 0.01})
+    with pytest.raises(ReconError, match=r"unknown parameter 'bogus' \(`bodyscan reconstruct --param help`"):
+        ReconParams.from_overrides({"bogus": 1})
     with pytest.raises(ReconError, match="t_d"):
         ReconParams.from_overrides({"t_d": -1})
     with pytest.raises(ReconError, match="mesh_h"):
