@@ -392,6 +392,10 @@ CLOSE = 1.0
 #: Sqrt(3) grid steps (a coarse grid point's farthest fine neighbour): the margin of `_seen_band`'s
 #: coarse pass over the band's limits.
 SLACK = 1.0
+#: Grid steps: the seen surface's band reaches at least this far outside the open mesh (and half
+#: of it inside), whatever the point spacing: its zero level then lies between grid points of the
+#: band on each side (on a 2 mm scan two spacings outside and one inside are under a step).
+BAND_MIN_STEPS = 2.0
 
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
@@ -422,7 +426,8 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
     band : float
         Spacings: grid points over the open mesh, from this far outside it to half of it inside,
         take their signed distance to it (`seen_distance`; 0 = off): the seen surface comes out
-        where the open mesh has it, the solids only close what it leaves open.
+        where the open mesh has it, the solids only close what it leaves open. At least
+        `BAND_MIN_STEPS` grid steps outside (on a dense scan).
     seen : (vertices (n', 3), faces (f', 3), face_section (f',)), optional
         The open mesh (wound outward) and its faces' sections.
     view : (view_dir (n, 3), head (n,) or None), optional
@@ -493,7 +498,8 @@ def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.
         np.copyto(F[box], val, where=better)
         lab[box][better] = j
     if seen is not None and band > 0:
-        _seen_band(F, lab, lo, voxel, spacing, band, *seen, workers=workers)
+        _seen_band(F, lab, lo, voxel, spacing, max(band, BAND_MIN_STEPS * voxel / spacing), *seen,
+                   workers=workers)
     if view is not None and (carve > 0 or background > 0):   # what a camera looked through is air
         flat = np.flatnonzero(F > -voxel)
         cams = Views(points, view[0], view[1], spacing)
