@@ -583,7 +583,7 @@ class SurfaceParams:
         "help": "proposed-closed: what every head sees farther than this beside its silhouette (its "
                 "points' image, the gaps between them closed) is air (0 = off)",
         "unit": "spacings", "range": (0.0, None)})
-    close_smooth: int = field(default=2, metadata={
+    close_smooth: int = field(default=12, metadata={
         "help": "proposed-closed: Taubin smoothing steps (a shrink and an inflate each) on the "
                 "marching-cubes surface, against the grid's facets (0 = off)",
         "unit": "", "range": (0, 100)})

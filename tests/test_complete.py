@@ -313,7 +313,7 @@ def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
 
 
 @pytest.mark.xfail(strict=True, reason="issue 15, open: 0.002 % of the closed surface's area stands more "
-                   "than 5 mm outside (max 7 mm), on the thigh's top beside the hip and under the "
+                   "than 5 mm outside (max 6 mm), on the thigh's top beside the hip and under the "
                    "hand, where the cameras' view grazes: there the nearest depth of a pixel's "
                    "neighbours lies in front of the surface, so the carve does not reach it")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
@@ -342,9 +342,10 @@ def _normal_error(rec, shapes):
 
 
 def test_closed_surface_smoothing_turns_the_faces_to_the_true_normals_without_moving_off(with_hand_and_foot):
-    """Taubin's steps on the marching-cubes surface (`close_smooth`, two by default) take out the
-    grid's facets and the creases of the cuts: the area more than 30 degrees off the capsule
-    body's normal falls (12.5 % to 11.5 %), and the surface moves no farther out of the body."""
+    """Taubin's steps on the marching-cubes surface (`close_smooth`, twelve by default) take out
+    the grid's facets and the creases of the cuts: the area more than 30 degrees off the capsule
+    body's normal falls (12.2 % to 9.2 %), and the surface moves no farther out of the body (its
+    farthest triangle 7.2 mm out before, 6.2 mm after)."""
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -353,7 +354,7 @@ def test_closed_surface_smoothing_turns_the_faces_to_the_true_normals_without_mo
         smooth = reconstruct(P, "proposed-closed", view_dir=vd, fit=fit)
     assert np.array_equal(raw.faces, smooth.faces) and not np.allclose(raw.vertices, smooth.vertices)
     (off0, out0), (off2, out2) = _normal_error(raw, shapes), _normal_error(smooth, shapes)
-    assert off2 < 0.95 * off0
+    assert off2 < 0.8 * off0
     assert out2 < out0 + 0.0005
 
 
