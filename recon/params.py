@@ -575,7 +575,7 @@ class SurfaceParams:
         "help": "proposed-closed: grid points over the open mesh, up to this outside it (half of "
                 "it inside), take their signed distance to it (0 = off)",
         "unit": "spacings", "range": (0.0, None)})
-    close_carve: float = field(default=1.0, metadata={
+    close_carve: float = field(default=0.25, metadata={
         "help": "proposed-closed: what lies this far in front of the surface a camera saw, along "
                 "its line of sight, is air and stays out of the closed surface (0 = off)",
         "unit": "spacings", "range": (0.0, None)})

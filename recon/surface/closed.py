@@ -400,7 +400,7 @@ BAND_MIN_STEPS = 2.0
 
 def closed_surface(points: np.ndarray, solids, spacing: float, voxel: float = 0.008,
                    cell: float = 1.5, envelope: float = 0.3, band: float = 2.0, seen=None,
-                   view=None, carve: float = 1.0, background: float = 0.5, smooth: int = 12,
+                   view=None, carve: float = 0.25, background: float = 0.5, smooth: int = 12,
                    workers: int = 1):
     """A closed, manifold surface: the union of the sections' solids, each the inside of its
     radial height field with the holes filled (`radial_field`), by marching cubes.
