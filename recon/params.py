@@ -573,7 +573,7 @@ class SurfaceParams:
         "unit": "widths", "range": (0.0, None)})
     close_band: float = field(default=2.0, metadata={
         "help": "proposed-closed: grid points over the open mesh, up to this outside it (half of "
-                "it inside), take their signed distance to it (0 = off)",
+                "it inside; at least two grid steps), take their signed distance to it (0 = off)",
         "unit": "spacings", "range": (0.0, None)})
     close_carve: float = field(default=0.25, metadata={
         "help": "proposed-closed: what lies this far in front of the surface a camera saw, along "
