@@ -313,10 +313,6 @@ class SurfaceParams:
         chest, elbows, knees; not the shoulders and hips, where the child leaves through the
         side): a cap there would only close the body's inside across the seam (paper silent;
         part of the removal of inner triangles, so ``proposed`` only).
-    inner_depth : float
-        Besides the paper's removal of triangles made only of multi-section points, remove the
-        triangles whose centroid lies deeper than this many widths inside an adjacent section's
-        model: they span a joint's opening inside the body where the seam has gaps. 0 disables.
     fold_cos, fold_edge_factor : float
         A triangle folds against its chart when its 3D normal, with the vertex order that is
         counter-clockwise in the chart, has a cosine below ``fold_cos`` with the chart's
@@ -487,8 +483,6 @@ class SurfaceParams:
         metadata={"help": "leave a section's end open where a child section continues it", "unit": "", "range": None})
     workers: int = field(default=2,  # not a method parameter: speed only
         metadata={"help": "threads triangulating the sections, and of the closed surface's KD-tree queries (speed only, same result)", "unit": "", "range": (1, 256)})
-    inner_depth: float = field(default=0.15,  # paper 3.3 (inner triangles), widths
-        metadata={"help": "remove triangles deeper than this inside an adjacent section's model (0 = off)", "unit": "widths", "range": (0, 10)})
     fold_cos: float = field(default=0.0,  # paper: none (-1 = off); chosen, see above
         metadata={"help": "fold rule: long triangles whose normal has a cosine below this with their chart are removed (-1 = off)", "unit": "", "range": (-1, 1)})
     fold_edge_factor: float = field(default=4.0,  # paper: none; chosen, spacings (= PAPER's hull_edge_factor)
@@ -611,7 +605,6 @@ class SurfaceParams:
         _check(self.concave_mean_height >= 0, "concave_mean_height", self.concave_mean_height, ">= 0 spacings")
         _check(self.concave_min_edge >= 0, "concave_min_edge", self.concave_min_edge, ">= 0 spacings")
         _check(int(self.concave_neighbours) >= 3, "concave_neighbours", self.concave_neighbours, "an integer >= 3")
-        _check(self.inner_depth >= 0, "inner_depth", self.inner_depth, ">= 0 widths (0 = off)")
 
 
 @dataclass(frozen=True)
@@ -1030,7 +1023,7 @@ PAPER = {
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0, "tilt_cos": 0.0,
     "orient_model_weight": 0.0,
-    "inner_depth": 0.0, "open_joint_ends": False, "mesh_adopted": False,
+    "open_joint_ends": False, "mesh_adopted": False,
     "far_charts": False, "far_view": False,
     "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
     "cover_max_edge": 0.0,

@@ -45,8 +45,7 @@ from itertools import chain
 
 import numpy as np
 
-from ..model import ADJACENT, SECTIONS, BodyFit, SectionShape, adjacency_matrix
-from ..clustering.cluster import near_section
+from ..model import ADJACENT, SECTIONS, BodyFit, SectionShape
 from ..params import PAPER, SurfaceParams
 
 TWO_PI = 2 * np.pi
@@ -615,33 +614,6 @@ def _has_parent(name: str, fit: BodyFit) -> bool:
     return any(d == name and p in fit.sections for p, d in ADJACENT)
 
 
-def inside_neighbours(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
-                      depth: float) -> np.ndarray:
-    """(m,) bool: faces whose centroid lies deep inside the model of a section adjacent to theirs.
-
-    Such a face spans the opening where the adjacent section joins (the cap of a neck, a hip),
-    inside the body: deeper than ``depth`` times that section's width below its model surface.
-    """
-    out = np.zeros(len(faces), dtype=bool)
-    if len(faces) == 0:
-        return out
-    cen = (points[faces[:, 0]] + points[faces[:, 1]] + points[faces[:, 2]]) / 3
-    adj = adjacency_matrix()
-    for j, name in enumerate(SECTIONS):
-        sel = np.flatnonzero(face_section == j)
-        if len(sel) == 0:
-            continue
-        for k in np.flatnonzero(adj[j]):
-            other = SECTIONS[k]
-            if other not in fit.sections:
-                continue
-            shape = fit.sections[other]
-            near = sel[near_section(shape, cen[sel], 0.0)]
-            r = shape.coords(cen[near])[0]
-            out[near[r < -depth * shape.width]] = True
-    return out
-
-
 def seen_through(points: np.ndarray, faces: np.ndarray, view_dir: np.ndarray, spacing: float,
                  margin: float = 0.5, min_edge: float = 2.0, reach: float = 1.0, min_rays: int = 1,
                  tree=None, workers: int = 1, chunk: int = 200000,
@@ -955,9 +927,6 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
     for j, f in done:
         per[j] = np.concatenate([per[j], f]) if j in per else f
     faces, sec = merge_sections(points, per, member, drop_inner)
-    if drop_inner and params.inner_depth > 0:
-        keep = ~inside_neighbours(points, faces, sec, fit, params.inner_depth)
-        faces, sec = faces[keep], sec[keep]
     if drop_inner and view_dir is not None:
         faces, sec = remove_air(points, faces, sec, view_dir, spacing, params, tree)
     if drop_inner and params.rejoin_edge > 0:
@@ -1025,9 +994,6 @@ def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, e
             for job in jobs]
     sec = np.concatenate([np.full(len(f), job[0], dtype=np.int8) for f, job in zip(more, jobs)])
     more = np.concatenate(more)
-    if params.inner_depth > 0:
-        keep = ~inside_neighbours(points, more, sec, fit, params.inner_depth)
-        more, sec = more[keep], sec[keep]
     if view_dir is not None:
         more, sec = remove_air(points, more, sec, view_dir, spacing, params, tree)
     return orient_charts(points, more, sec, fit, jobs, view_dir, params.orient_model_weight), sec
