@@ -695,14 +695,6 @@ class FitParams:
         metadata={"help": "weight of empty voxels in the match", "unit": "", "range": (-100, 100)})
     match_claimed_weight: float = field(default=-0.5,  # 2.3(2): weight of voxels inside sections already placed (chosen)
         metadata={"help": "weight of voxels inside sections already placed", "unit": "", "range": (-100, 100)})
-    match_arms_first_retry: int = field(default=1,  # 2.3(2): 1 = when an upper arm and a leg section of one side both land in
-        metadata={"help": "1 = when an upper arm and a leg of one side both land in empty voxels, also place the arms first and keep the better", "unit": "", "range": (0, 1)})
-    #   empty voxels (below `match_min_section_score`), the sections are placed again with the arms before the
-    #   legs and that placement kept when it explains more points and the side's leg scores no lower on the
-    #   volume (a leg scoring lower gave its voxels to the arm) (`recon.posture.match._place_body`): the leg, placed first,
-    #   took the arm's voxels (squat k3: the thigh rose onto the forearm resting over the knee, score -0.26, and
-    #   the upper arm was sent backwards into empty voxels, -0.30; arms first: ua_l fitted). 0 = legs first only
-    #   (chosen: both in empty voxels means one of them is misplaced; the points decide, as between torsos)
     match_max_adduction: float = field(default=0.25,  # 2.3(2): limb may point at most this far (cosine) across the body (chosen)
         metadata={"help": "a limb points at most this far (cosine) across the body", "unit": "", "range": (-1, 1)})
     match_leg_claim_margin: float = field(default=0.02,  # 2.3(2): the legs, placed before the arms, claim their voxels this far beyond

@@ -842,28 +842,6 @@ def test_a_section_pointed_at_the_cameras_is_missing_from_the_scan_and_others_ar
     assert outcome(err, ang, ()) == "pass"
 
 
-def test_an_arm_over_the_knee_is_placed_before_the_leg_takes_it():
-    """`match_arms_first_retry`: squat at k = 3 (forearms resting over the knees): placed legs first,
-    the left thigh rose onto the forearm and the upper arm went backwards into empty voxels, listed
-    unfitted though the scan shows it; placed again arms first, the upper arm and forearm follow
-    their bones (measured 2.2 and 8.9 degrees; elbow 4.3 cm off) and every joint given meets the
-    targets (left leg listed: the scan misses it). The case arises with the scan fitted as it lies
-    (`fit_facing` = 0); the default facing meets the targets too."""
-    from bodyscan.benchmarks.fit_table import run_one
-
-    if "squat" not in _library():
-        pytest.skip("library postures missing")
-    from bodyscan import poses
-
-    body = poses.load_body("squat")
-    for params in (FitParams(fit_facing=0), FitParams()):
-        row = run_one(body, "k3", 0.01, params, clean=False)
-        assert row["outcome"] in ("pass", "part")
-        assert "upper_arm_l" not in row["unfitted"] and "forearm_l" not in row["unfitted"]
-    before = run_one(body, "k3", 0.01, FitParams(match_arms_first_retry=0, fit_facing=0), clean=False)
-    assert "upper_arm_l" in before["unfitted"]
-
-
 def test_a_body_turned_in_the_scanner_is_fitted_in_the_facing_that_explains_it():
     """A fit in doubt is made in every facing (`recon.posture.fit._fit_facings`): a heavy body
     standing turned 30 degrees in the scanner (its occlusions differ from any turned scan) was

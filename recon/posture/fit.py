@@ -40,11 +40,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    head (about the neck, within 70 degrees of the chest's axis but at most `match_head_max_side`
    sideways: the neck's lateral flexion; a raised arm beside the head otherwise takes it), then thighs and lower legs, then upper arms and forearms (the paper does
    the arms before the legs; we place the legs first because hanging hands reach down beside the
-   thighs; when an upper arm and a leg section of one side then both lie in empty voxels, the leg
-   may have taken the arm's voxels - a squatting body's forearm resting over the knee - and the
-   sections are placed again in the paper's order, kept when it explains more points and that
-   leg scores no lower on the volume:
-   `match_arms_first_retry`). Where the paper does not say how a limb's direction is searched, each limb chain is
+   thighs). Where the paper does not say how a limb's direction is searched, each limb chain is
    searched on a sphere of `match_directions` directions for its proximal section, the best
    `match_beam` of them are extended by the same search for the distal section (elbow or knee bend
    at most `match_max_bend` degrees, the limb pointing at most `match_max_adduction` across the

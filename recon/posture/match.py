@@ -360,11 +360,10 @@ def _robust_radii(points, s: SectionShape) -> np.ndarray:
 
 
 def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, params, dirs,
-                anchor: bool = True, min_shift: float | None = None, arms_first: bool = False) -> Pose:
+                anchor: bool = True, min_shift: float | None = None) -> Pose:
     """Place all sections for a torso pose (R columns: left, back, up) and score the whole match;
     the torso slides to hang from the crown when the crown is off by more than ``min_shift`` (m;
-    default `match_min_anchor_shift`). Legs before arms, unless ``arms_first`` (the paper's order;
-    tried again when an arm and a leg of one side both land in empty voxels: `match_arms_first_retry`)."""
+    default `match_min_anchor_shift`). Legs before arms (the paper places the arms first)."""
     import copy
 
     scorer = copy.copy(scorer_base)
@@ -424,7 +423,7 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
     scorer.claim(secs["head"])
     # limb roots in the chest (arms) and waist (legs) frames; legs first: hanging hands reach
     # down beside the thighs, and a leg's volume is larger and unambiguous
-    for prox, dist, root_name, _, _ in (LIMBS if arms_first else LIMBS[2:] + LIMBS[:2]):
+    for prox, dist, root_name, _, _ in LIMBS[2:] + LIMBS[:2]:
         off = body.root_offset(root_name)
         if root_name.startswith("shoulder"):
             base = chest.frame.T  # columns x, y, axis of the chest
@@ -455,29 +454,8 @@ def _place_body(points, scorer_base: Scorer, centre, R, body: StandardBody, para
         scorer.claim(p.replace(radii=p.radii + m))
         scorer.claim(q.replace(radii=q.radii + m))
         total += s
-    pose = Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores,
+    return Pose(centre=centre, R=R, body=body, sections=secs, score=total, section_scores=fit_scores,
                 shell_scores=shell_scores)
-    low = params.match_min_section_score
-    clash = [x for x in "lr" if fit_scores[f"upper_arm_{x}"] < low
-             and min(fit_scores[f"thigh_{x}"], fit_scores[f"lower_leg_{x}"]) < low]
-    if clash and not arms_first and params.match_arms_first_retry:
-        # an arm and a leg of one side both in empty voxels: the leg, placed first, may have taken
-        # the arm's voxels (a squatting body's forearm over its knee: the thigh rose onto it and the
-        # arm went into the air: upper arm -0.30, thigh -0.26; arms first 0.81 and -0.13). The arms
-        # placed first, the points decide, but only when that leg loses nothing on the volume: freed
-        # from the arm's voxels it finds its own; a leg scoring lower gave its voxels to the arm
-        # (heavy_a_pose turned 137 degrees, 20 mm: arm -0.11 -> 1.14, leg 0.21 -> -0.26, a WRONG fit)
-        other = _place_body(points, scorer_base, centre, R, body, params, dirs, anchor=False, arms_first=True)
-        sample = points[::max(1, len(points) // params.match_explain_points)]
-        near = params.match_explain_distance
-
-        def leg(sc, x):
-            return sc[f"thigh_{x}"] + sc[f"lower_leg_{x}"]
-
-        if all(leg(other.section_scores, x) >= leg(fit_scores, x) for x in clash) and \
-                explained_fraction(sample, other.sections, near) > explained_fraction(sample, pose.sections, near):
-            return other
-    return pose
 
 
 def _chain_columns(scorer, root, d1, d2, prox, dist, body):
