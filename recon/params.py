@@ -39,13 +39,6 @@ class ClusterParams:
         0.25 -> 0.916 / 0.057 / 0.0046, 0.5 -> 0.916 / 0.057 / 0.0043, 1 -> 0.923 / 0.057 /
         0.0046, always split -> 0.923 / 0.061 / 0.0045. The refinement matters little once the
         multi-section rules run; 0.5 has the least bridging (1 gains accuracy on the squat only).
-    refine_adjacent : bool
-        Refinement may also split off points claimed by an adjacent section away from their
-        joint (an arm against the chest below the shoulder); False: only non-adjacent sections.
-        Measured (21 shipped postures, oracle posture, ``python -m bodyscan.benchmarks.recon_table``):
-        True gives mean bridging 0.88 % instead of 0.49 % (the hips' overlap, the crotch seam, is
-        split off), 0.53 % when only points beside the proximal column count (heavy_standing 1.06
-        -> 0.78 %, but standing 0.49 -> 0.84 %, heavy_a_pose 0.30 -> 0.90 %): kept False.
     otsu_bins : int
         Bins of each cell's histogram of r, spanning that cell's r range (paper silent).
     near_band : float
@@ -205,8 +198,6 @@ class ClusterParams:
         metadata={"help": "cells along each section's axis (h) for the T_n refinement", "unit": "", "range": (1, 1000)})
     t_n_factor: float = field(default=0.5,  # paper 4.2: value lost; chosen by sweep
         metadata={"help": "T_n = the cell histogram's maximum frequency times this; a cell with more points near its Otsu threshold is kept whole", "unit": "", "range": (0, 100)})
-    refine_adjacent: bool = field(default=False,  # paper silent
-        metadata={"help": "refinement also splits off points claimed by an adjacent section away from their joint", "unit": "", "range": None})
     otsu_bins: int = field(default=16,  # paper silent
         metadata={"help": "bins of each cell's histogram of r (the Otsu threshold)", "unit": "", "range": (2, 1000)})
     near_band: float = field(default=1.0,  # paper silent, bin widths
@@ -296,10 +287,6 @@ class SurfaceParams:
         keep 4 (`PAPER`), where longer slivers are air.
     min_section_points : int
         A section with fewer points is skipped with a warning (paper silent).
-    mesh_adopted : bool
-        Mesh the points that are farther than T_d from every model surface and got their section
-        from a neighbour (``adopt_unlabeled``: fingers, toes). False, as in the paper, which
-        clusters, and so meshes, only points within T_d: they keep their labels but are in no face.
     workers : int
         Threads triangulating the sections in parallel (numpy and Qhull release the GIL), and of
         the closed surface's KD-tree queries; the result does not depend on it. 1: one after
@@ -475,8 +462,6 @@ class SurfaceParams:
         metadata={"help": "boundary triangles with an edge longer than this are peeled off", "unit": "spacings", "range": (0.01, 1000)})
     min_section_points: int = field(default=10,  # paper silent
         metadata={"help": "a section with fewer points is skipped with a warning", "unit": "", "range": (3, None)})
-    mesh_adopted: bool = field(default=False,  # paper 3: only points within T_d are clustered
-        metadata={"help": "also mesh the points that got their section from a neighbour (fingers, toes)", "unit": "", "range": None})
     open_joints: bool = field(default=True,  # paper 3.3 (open ends), applied at joints
         metadata={"help": "leave a section's proximal end at a joint open (no cap)", "unit": "", "range": None})
     open_joint_ends: bool = field(default=True,  # paper silent
@@ -1011,11 +996,11 @@ PAPER = {
     # clustering (paper 3.1-3.2)
     "joint_plane_weight": 0.0, "side_joint_planes": False, "joint_plane_bones": False,
     "hip_planes": False, "claim_across_joints": 0.0, "three_keep_nearest": 0.0,
-    "adopt_unlabeled": False, "refine_adjacent": False,
+    "adopt_unlabeled": False,
     # surface (paper 3.3)
     "fold_cos": -1.0, "carve_margin": 0.0, "facing_cos": -1.0, "concave_height": 0.0, "tilt_cos": 0.0,
     "orient_model_weight": 0.0,
-    "open_joint_ends": False, "mesh_adopted": False,
+    "open_joint_ends": False,
     "far_charts": False, "far_view": False,
     "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
     "cover_max_edge": 0.0,

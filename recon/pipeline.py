@@ -393,17 +393,17 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         member = member.copy()   # labelled as the section they continue, meshed on their own chart
         member[np.flatnonzero(ext >= 0), parent[ext[ext >= 0]]] = True
         meshed = member & (ext < 0)[:, None]
-    if not params.surface.mesh_adopted:  # points beyond T_d of every section: labelled, not meshed
-        from .clustering.cluster import section_widths, simple_clustering
+    # points beyond T_d of every section: labelled (paper 3), not meshed with the sections
+    from .clustering.cluster import section_widths, simple_clustering
 
-        far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1) & (ext < 0)
-        sp = params.surface
-        meshed = member & ~far[:, None] & (ext < 0)[:, None]
-        if sp.far_charts and steps != "simple":  # ... or on charts of their own
-            from .surface.complete import far_charts
+    far = ~simple_clustering(coords[0], section_widths(fit), params.cluster.t_d).any(axis=1) & (ext < 0)
+    sp = params.surface
+    meshed = member & ~far[:, None] & (ext < 0)[:, None]
+    if sp.far_charts and steps != "simple":  # ... but on charts of their own
+        from .surface.complete import far_charts
 
-            extra = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link,
-                               sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
+        extra = far_charts(p, far, fit.sections, meshed, spacing, sp.far_link,
+                           sp.far_join, sp.far_min_points, sp.far_max_edge, tree)
     if (ext >= 0).any():
         from .surface.complete import extremity_charts
 

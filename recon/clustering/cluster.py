@@ -185,8 +185,9 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
     threshold unless the cell is single-peaked (more than T_n points near the threshold). In a
     two-peak cell the larger-r peak "represents the surface of another body section": its points
     leave this section, but only those that are also members of another section, and not at the
-    joint of that section with this one (paper silent; with ``params.refine_adjacent`` False, only
-    sections that do not meet this one at any joint count). So a point never leaves its only section
+    joint of that section with this one (paper silent: only sections that do not meet this one at any
+    joint count; counting adjacent ones too split off the hips' overlap, the crotch seam, and on the
+    library doubled the bridging). So a point never leaves its only section
     (the paper's proviso that two peaks may come from noise), and the overlap of adjacent sections
     at their joint, where the surfaces are continuous, is left to the joint rule (an arm against
     the chest below the shoulder is still split off).
@@ -229,12 +230,6 @@ def refine_by_distance(member: np.ndarray, r: np.ndarray, theta: np.ndarray, h: 
         thr, split = otsu_cells(cell, rr, n_cells, bins=params.otsu_bins, near_band=params.near_band,
                                 t_n_factor=params.t_n_factor, min_points=params.min_cell_points)
         elsewhere = (out[idx][:, apart[j]]).any(axis=1)
-        for (p, d) in ADJACENT if params.refine_adjacent else ():  # adjacent, away from the joint
-            if name not in (p, d) or p not in fit.sections or d not in fit.sections:
-                continue
-            k = SECTIONS.index(d if name == p else p)
-            away = ~(h[idx, SECTIONS.index(d)] < params.joint_reach * fit.sections[d].width)
-            elsewhere |= out[idx, k] & away
         drop = split[cell] & (rr >= thr[cell]) & elsewhere
         out[idx[drop], j] = False
     return out
