@@ -265,9 +265,12 @@ def main(argv=None) -> int:
         ap.error(f"--jobs must be at least 1, not {a.jobs}")
 
     from bodyscan.poses import expand_bodies
-    from bodyscan.recon import FitParams
+    from bodyscan.recon import FitParams, ReconError
 
-    params = FitParams.from_strings(a.param)
+    try:
+        params = FitParams.from_strings(a.param)
+    except ReconError as e:
+        ap.error(str(e))
     names = expand_bodies(b for b in a.bodies.split(",") if b)
     conds = [c for c in a.conditions.split(",") if c]
     print(f"resolution {a.resolution} m; median/max joint error cm; worst limb angle deg")

@@ -37,7 +37,7 @@ def run(args) -> int:
     from dataclasses import fields
 
     from .cloud import read_cloud
-    from .params import CleanParams, FitParams, ReconParams
+    from .params import CleanParams, FitParams, ReconParams, _did_you_mean
     from .pipeline import estimate_fit
 
     from bodyscan._io import check_out, write_json
@@ -45,11 +45,15 @@ def run(args) -> int:
     from . import ReconError
 
     known = {f.name for cls in (FitParams, CleanParams) for f in fields(cls)}
+    stage_of = {f.name: stage for stage, obj in ReconParams().stages().items() for f in fields(obj)}
     for pair in args.param:   # the posture depends on the fit's and the cleaning's parameters only
         name, sep, _ = pair.partition("=")
-        if not sep or name.strip() not in known:
+        name = name.strip()
+        if not sep or name not in known:
+            hint = (f"; {name!r} is a {stage_of[name]} parameter, which the fit does not use"
+                    if name in stage_of else _did_you_mean(name, known))
             raise ReconError(f"--param {pair!r}: expected name=value with name a parameter of the "
-                             "posture fit or the cleaning before it (`--param help` lists them)")
+                             f"posture fit or the cleaning before it{hint} (`--param help` lists them)")
     params = ReconParams.from_overrides({n.strip(): v for n, _, v in (p.partition("=") for p in args.param)})
     out = check_out(args.out, error=ReconError)
     if args.preview:

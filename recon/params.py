@@ -975,9 +975,11 @@ class FitParams:
         for pair in pairs or ():
             name, sep, value = pair.partition("=")
             name = name.strip()
-            if not sep or name not in known:
-                raise ReconError(f"--param {pair!r}: expected name=value with name one of "
-                                 f"{', '.join(known)}")
+            if not sep:
+                raise ReconError(f"--param {pair!r}: expected name=value")
+            if name not in known:
+                raise ReconError(f"--param {pair!r}: unknown posture parameter {name!r}"
+                                 f"{_did_you_mean(name, known)} (`bodyscan fit --param help` lists them)")
             kw[name] = coerce(known[name], value, ReconError)
         return cls(**kw)
 
@@ -987,8 +989,7 @@ class FitParams:
 #: neighbours' erosion fronts alone, paper 3.2), no claims across joints, no adoption of
 #: unlabelled points (the paper leaves them out), the three-or-more rule copies from the nearest
 #: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
-#: points) only: no deeper inner triangles, no open joint ends, no fold, carving, view or
-#: concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
+#: points) only: no open joint ends, no fold, carving, view or concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
 #: size estimate, no alternatives, no check against the cameras' view. Kept, being steps without which nothing works, and the same
 #: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
 #: itself (``recon.posture.match``, whose voxel score is paper 2.3).
@@ -1100,13 +1101,24 @@ def _field(cls, name):
     return next(f for f in fields(cls) if f.name == name)
 
 
+#: Parameters that were removed, and why: a sweep file or script that still sets one is told so.
+REMOVED = {
+    "inner_depth": "removed: the rule changed no score measurably (commit ac243cc)",
+    "match_arms_first_retry": "removed: the rule changed 3 of 488 corpus fits, net none (commit c17ba13)",
+    "refine_adjacent": "removed: it was off in every method and measured worse (commit 55d73a9)",
+    "mesh_adopted": "removed: it was off in every method; far_charts meshes those points (commit 55d73a9)",
+}
+
+
 def _did_you_mean(name: str, known) -> str:
     """``"; did you mean 'a' or 'b'?"``: the known names nearest to a mistyped one (those it
     begins or is part of, then the most alike; a stage prefix such as ``surface.`` dropped), or
-    ``""``."""
+    ``""``; for a parameter that was removed, why (`REMOVED`)."""
     import difflib
 
     bare = name.rsplit(".", 1)[-1].strip().lower()
+    if bare in REMOVED:
+        return f"; {REMOVED[bare]}: leave it out"
     known = sorted(known)
     if bare in known:
         return f"; the names take no stage prefix: {bare!r}"

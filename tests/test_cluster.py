@@ -6,7 +6,7 @@ import pytest
 from bodyscan.recon import ReconError
 from bodyscan.recon.clustering import cluster as C
 from bodyscan.recon.model import SECTIONS, BodyFit, SectionShape
-from bodyscan.recon.params import ClusterParams, ReconParams
+from bodyscan.recon.params import ClusterParams, FitParams, ReconParams
 
 X = np.array([1.0, 0, 0])
 I = {name: i for i, name in enumerate(SECTIONS)}
@@ -144,6 +144,12 @@ def test_params_overrides_resolve_names_and_reject_bad_ones():
         ReconParams.from_overrides({"close_voxl": 0.01})
     with pytest.raises(ReconError, match="no stage prefix: 'close_voxel'"):
         ReconParams.from_overrides({"surface.close_voxel": 0.01})
+    with pytest.raises(ReconError, match="unknown parameter 'inner_depth'; removed: .* leave it out"):
+        ReconParams.from_overrides({"inner_depth": 0.15})    # a sweep file from before the removal
+    with pytest.raises(ReconError, match="unknown posture parameter 'fit_facng'; did you mean 'fit_facing'"):
+        FitParams.from_strings(["fit_facng=4"])
+    with pytest.raises(ReconError, match="expected name=value"):
+        FitParams.from_strings(["fit_facing"])
     with pytest.raises(ReconError, match=r"unknown parameter 'bogus' \(`bodyscan reconstruct --param help`"):
         ReconParams.from_overrides({"bogus": 1})
     with pytest.raises(ReconError, match="t_d"):

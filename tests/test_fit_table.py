@@ -90,3 +90,13 @@ def test_jobs_below_one_is_a_usage_error(capsys):
     with pytest.raises(SystemExit) as e:
         fit_table.main(["--jobs", "0"])
     assert e.value.code == 2 and "--jobs must be at least 1" in capsys.readouterr().err
+
+
+def test_a_bad_param_is_a_usage_error_with_the_nearest_names(capsys):
+    with pytest.raises(SystemExit) as e:
+        fit_table.main(["--bodies", "standing", "--param", "fit_facng=4"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "did you mean 'fit_facing'" in err and "Traceback" not in err
+    with pytest.raises(SystemExit) as e:
+        fit_table.main(["--bodies", "standing", "--param", "match_arms_first_retry=1"])
+    assert e.value.code == 2 and "removed" in capsys.readouterr().err

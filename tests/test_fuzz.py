@@ -253,6 +253,15 @@ def test_fit_refuses_bad_parameters_before_reading(params, files, capsys):
     assert "points from" not in err          # refused before the cloud was read
 
 
+def test_fit_says_what_a_parameter_it_refuses_is(files, capsys):
+    """A clustering parameter is named as such (the fit does not use it); a removed one says it was removed."""
+    for param, said in (("t_d=0.3", "'t_d' is a cluster parameter"), ("match_arms_first_retry=1", "removed"),
+                        ("fit_facng=4", "did you mean 'fit_facing'")):
+        code, _, err = run(["fit", files / "c.ply", "--out", files / "f.json", "--param", param], capsys)
+        assert_user_error(code, err)
+        assert said in err
+
+
 @pytest.mark.parametrize("params", RECON_CASES, ids=" ".join)
 def test_reconstruct_refuses_bad_parameters(params, files, capsys):
     argv = ["reconstruct", files / "c.ply", "--out", files / "m.ply"] + [a for p in params for a in ("--param", p)]
