@@ -80,8 +80,10 @@ def test_a_non_person_is_not_fitted_silently(make):
 def test_params_from_strings():
     p = FitParams.from_strings(["voxel_max=0.03", "match_beam=4"])
     assert p.voxel_max == 0.03 and p.match_beam == 4 and p.contour_weight == 2.0
-    with pytest.raises(ReconError, match="name=value"):
+    with pytest.raises(ReconError, match="unknown posture parameter 'nope'"):
         FitParams.from_strings(["nope=1"])
+    with pytest.raises(ReconError, match="name=value"):
+        FitParams.from_strings(["voxel_max"])
     with pytest.raises(ReconError, match="voxel_max=.big.: expected a number"):
         FitParams.from_strings(["voxel_max=big"])
 
