@@ -37,15 +37,15 @@ def run(args) -> int:
     from dataclasses import fields
 
     from .cloud import read_cloud
-    from .params import CleanParams, FitParams, ReconParams, _did_you_mean
+    from .params import ReconParams, _did_you_mean
     from .pipeline import estimate_fit
 
     from bodyscan._io import check_out, write_json
 
     from . import ReconError
 
-    known = {f.name for cls in (FitParams, CleanParams) for f in fields(cls)}
     stage_of = {f.name: stage for stage, obj in ReconParams().stages().items() for f in fields(obj)}
+    known = {name for name, stage in stage_of.items() if stage in ("fit", "clean")}
     for pair in args.param:   # the posture depends on the fit's and the cleaning's parameters only
         name, sep, _ = pair.partition("=")
         name = name.strip()

@@ -381,7 +381,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     member = cluster_points(p, fit, steps, params.cluster, coords=coords, tree=tree)
     times["cluster"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    meshed, extra = member, []
+    extra = []
     spacing = median_spacing(p, tree=tree)
     ext = np.full(len(p), -1)   # the hand or foot of each point (beyond the paper), -1 for none
     if fit.extremities and steps != "simple":
@@ -392,7 +392,6 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         parent = np.array([SECTIONS.index(a) for a, _ in EXTREMITIES.values()])
         member = member.copy()   # labelled as the section they continue, meshed on their own chart
         member[np.flatnonzero(ext >= 0), parent[ext[ext >= 0]]] = True
-        meshed = member & (ext < 0)[:, None]
     # points beyond T_d of every section: labelled (paper 3), not meshed with the sections
     from .clustering.cluster import section_widths, simple_clustering
 
@@ -407,7 +406,6 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     if (ext >= 0).any():
         from .surface.complete import extremity_charts
 
-        sp = params.surface
         extra = extremity_charts(p, ext, fit, meshed, spacing, sp.far_join, sp.far_max_edge, tree,
                                  sp.far_hand_spacing) + extra
     t_mesh = time.perf_counter() - t0
