@@ -383,9 +383,11 @@ class SurfaceParams:
         1.3314 m^2); the concavity rules alone 1.054 -> 0.780 % for 0.06 %; both 0.756 %, 1.3306.
     peel_same_side : float
         The boundary peel (and the far charts' ``far_max_edge``) measures a triangle whose vertices
-        were seen from one side (their mean unit viewing direction at least this long) across the
-        view, as the camera saw it (`recon.surface.mesh.view_edge_length`): the flanks of limbs and
-        trunk, steep to the camera, are long in 3D but a grid step apart to it (paper: 3D, 2);
+        were seen along one axis (their unit viewing directions, turned to one side, at least this
+        long on average) across the view, as the cameras saw it
+        (`recon.surface.mesh.view_edge_length`): the flanks of limbs and trunk, steep to the
+        cameras, are long in 3D but a grid step apart to them, where one head's samples end and
+        the other's begin as well (paper: 3D, 2);
         at least the 3D length over ``peel_stretch`` (two surfaces one behind the other, a thigh
         over a calf in a squat, are near across the view too).
     cover_max_edge : float
@@ -395,6 +397,13 @@ class SurfaceParams:
         Spacings: the points the peel and the air rules left out of every face are put back with
         triangles no longer than this on their own chart (`recon.surface.mesh.rejoin_left_out`;
         paper: 0).
+    curve_edge : float
+        Spacings: every edge of the open surface longer than this is split, repeatedly, at its
+        midpoint lifted onto the tangent planes of its ends (`recon.surface.curve`; normals from
+        `recon.surface.mesh.point_normals`, turned outward with the surface). A long flat triangle
+        over the flank of a limb, which the cameras see at grazing angles, is a chord 5-9 mm inside
+        the body; the split one follows it. The new vertices come after the input points
+        (``Reconstruction.point_index`` -1). Paper: 0 (flat triangles).
     concave_height, concave_mean_height, concave_min_edge : float
         Covers of concavities (paper: none; ``concave_height = 0`` switches it off; ``proposed``
         only): a triangle of surface lies in the surface's tangent planes at its vertices, up to
@@ -507,8 +516,8 @@ class SurfaceParams:
                 "than this: dense scans keep their surface across small gaps (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
     peel_same_side: float = field(default=0.9, metadata={
-        "help": "the peel measures a triangle seen from one side (mean view direction at least this "
-                "long) across the view, as its camera saw it (above 1: in 3D)", "unit": "", "range": (0.0, 2.0)})
+        "help": "the peel measures a triangle seen along one axis (its view directions' mean, up "
+                "to sign, at least this long) across the view (above 1: in 3D)", "unit": "", "range": (0.0, 2.0)})
     peel_stretch: float = field(default=1.5, metadata={
         "help": "a triangle seen from one side counts at least its 3D length over this (a depth "
                 "step is short across the view)", "unit": "", "range": (1.0, None)})
@@ -519,6 +528,10 @@ class SurfaceParams:
     rejoin_edge: float = field(default=2.5, metadata={
         "help": "points the rules left out of every face are put back with triangles no longer than "
                 "this, on their own chart (0 = off)", "unit": "spacings", "range": (0.0, None)})
+    curve_edge: float = field(default=2.0, metadata={
+        "help": "longer edges are split at midpoints lifted toward their ends' tangent planes: "
+                "long triangles follow the body, not a chord (0 = flat, as the paper)",
+        "unit": "spacings", "range": (0.0, None)})
     far_charts: bool = field(default=True, metadata={
         "help": "mesh the points beyond T_d of every section and those the charts left out "
                 "(hands, feet, unfitted sections) on charts of their own (False: the paper)",
@@ -1004,7 +1017,7 @@ PAPER = {
     "open_joint_ends": False,
     "far_charts": False, "far_view": False,
     "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
-    "cover_max_edge": 0.0,
+    "cover_max_edge": 0.0, "curve_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)

@@ -25,11 +25,13 @@ class Reconstruction:
 
     Attributes
     ----------
-    vertices : (n, 3) float
+    vertices : (n + n_new, 3) float
         The mesh vertices, metres: the input points by index (unused points are in no face),
         registered between heads and, for ``proposed`` with ``denoise``, moved onto their
         section's robust surface (or their far part's, for points in no section: `points` keeps
-        the input, `moved` says how far).
+        the input, `moved` says how far); then the vertices the method made (``proposed``'s
+        curved subdivision, ``curve_edge``; ``proposed-closed``'s closed surface), whose
+        `point_index` is -1.
     faces : (m, 3) int
         Triangles, outward winding.
     face_section : (m,) int8
@@ -39,7 +41,8 @@ class Reconstruction:
     fit : BodyFit
     times : dict of str to float
         Seconds per stage: the fit's stages prefixed ``fit_``, then ``coords``, ``cluster``,
-        ``surface`` and ``total``.
+        ``surface``, ``curve`` (the curved subdivision), ``complete`` (``proposed-closed``) and
+        ``total``.
     params : ReconParams
     method : str
     skipped : tuple of str
@@ -54,6 +57,10 @@ class Reconstruction:
         Points rejected as outliers (before the fit, and in the charts): in no section, no face.
     registration : recon.clean.register.Registration or None
         The correction applied to each head (``register_heads``).
+    point_faces : (m', 3) int or None
+        The open surface as triangles over the input points alone, before the curved subdivision
+        split its long ones (for ``proposed-closed``: the open surface it closed). Per-point data
+        (`point_sections`, a scan's ground truth) apply to its vertices directly. None: `faces`.
     """
 
     vertices: np.ndarray
@@ -70,6 +77,7 @@ class Reconstruction:
     moved: np.ndarray | None = None
     outliers: np.ndarray | None = None
     registration: object = None
+    point_faces: np.ndarray | None = None
 
     @property
     def point_index(self) -> np.ndarray:
@@ -454,6 +462,18 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     moved = np.linalg.norm(vertices - raw, axis=1)
     faces = keep[faces]
     unmeshed = unmeshed_count(len(raw), faces)
+    point_faces = faces
+    if steps == "proposed" and params.surface.curve_edge > 0:   # long triangles follow the body
+        from .surface.curve import curve_surface
+
+        t0 = time.perf_counter()
+        kept = np.searchsorted(keep, faces)    # the faces over the kept points
+        cv, kept, face_section = curve_surface(mesh_points, kept, params.surface.curve_edge * spacing,
+                                               vd, tree, face_section)
+        new = kept >= len(keep)
+        faces = np.where(new, kept - len(keep) + len(raw), keep[np.minimum(kept, len(keep) - 1)])
+        vertices = np.concatenate([vertices, cv[len(keep):]])
+        times["curve"] = time.perf_counter() - t0
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
         from .surface.closed import closed_surface
 
@@ -467,7 +487,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
                                               sp.close_band, (vertices, faces, face_section),
                                               view, sp.close_carve, sp.close_background,
                                               sp.close_smooth, sp.workers)
-        vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
+        vertices, faces = np.concatenate([vertices[:len(raw)], cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start
     sections = np.zeros((len(raw), member.shape[1]), dtype=bool)
@@ -477,4 +497,4 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     return Reconstruction(vertices=vertices, faces=faces, face_section=face_section,
                           point_sections=sections, fit=fit, times=times, params=params, method=method,
                           skipped=tuple(skipped), points_unmeshed=unmeshed, points=raw, moved=moved,
-                          outliers=outliers, registration=prep.registration)
+                          outliers=outliers, registration=prep.registration, point_faces=point_faces)

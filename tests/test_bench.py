@@ -172,7 +172,8 @@ def test_score_command_agrees_with_bench_on_every_metric(standing_scan, tmp_path
     assert main(["score", str(mesh), "--body", "standing", "--cloud", str(cloud), "--fit",
                  str(fit_path), "--out", str(out), "--metric", "n_samples=20000"]) == 0
     got = json.loads(out.read_text())
-    assert got["matched_vertex_fraction"] == 1.0
+    # every input point found (the curved subdivision's vertices have none)
+    assert got["matched_vertex_fraction"] == np.mean(rec.point_index >= 0) < 1
     compared = 0
     for name, value in row.items():
         if name not in got or name in ("body", "method"):

@@ -101,22 +101,26 @@ def test_hand_and_foot_are_meshed_and_joined_without_air(with_hand_and_foot):
         paper = reconstruct(P, "proposed", ReconParams.from_overrides({"far_charts": False, "extremities": False}),
                             view_dir=vd, fit=fit)
         rec = reconstruct(P, "proposed", view_dir=vd, fit=fit)
+        # the same triangles over the points, unsplit: their sections beside the points' labels
+        flat = reconstruct(P, "proposed", ReconParams.from_overrides({"curve_edge": 0}), view_dir=vd, fit=fit)
+    assert np.array_equal(np.sort(flat.faces, axis=1), np.sort(rec.point_faces, axis=1))
     assert set(rec.fit.extremities) == {"hand_l", "foot_l"} and not paper.fit.extremities
     ext = np.isin(L, [HAND, FOOT])
     used = np.zeros(len(P), bool)
-    used[rec.faces.ravel()] = True
+    used[rec.point_faces.ravel()] = True
     used_paper = np.zeros(len(P), bool)
-    used_paper[paper.faces.ravel()] = True
+    used_paper[paper.point_faces.ravel()] = True
     assert used[ext].mean() > 0.95 > 0.7 > used_paper[ext].mean()
     assert rec.points_unmeshed < paper.points_unmeshed
-    lab = L[rec.faces]
+    lab = L[flat.faces]
     for part, section in ((HAND, FOREARM), (FOOT, LOWER_LEG)):
         assert ((lab == part).any(axis=1) & (lab == section).any(axis=1)).any()   # joined
         # scored as its section (the hand's points within T_d of the waist are the clustering's)
-        assert np.mean(rec.face_section[(lab == part).all(axis=1)] == section) > 0.5
-    area = face_areas(P, rec.faces)
-    air = outside(shapes, P[rec.faces].mean(axis=1)) > 0.005
-    assert area[air].sum() < 0.005 * area.sum()
+        assert np.mean(flat.face_section[(lab == part).all(axis=1)] == section) > 0.5
+    for r in (rec, flat):
+        area = face_areas(r.vertices, r.faces)
+        air = outside(shapes, r.vertices[r.faces].mean(axis=1)) > 0.005
+        assert area[air].sum() < 0.005 * area.sum()
 
 
 def test_a_known_hole_is_filled_within_2mm_of_the_surface():
@@ -312,11 +316,10 @@ def test_closed_output_keeps_the_seen_surface_within_2mm(with_hand_and_foot):
     assert np.mean(dist < 0.002) > 0.99
 
 
-@pytest.mark.xfail(strict=True, reason="issue 15, open: 0.002 % of the closed surface's area stands more "
-                   "than 5 mm outside (max 6 mm), on the thigh's top beside the hip and under the "
-                   "hand, where the cameras' view grazes: there the nearest depth of a pixel's "
-                   "neighbours lies in front of the surface, so the carve does not reach it")
 def test_closed_output_has_no_triangle_5mm_outside_the_body(with_hand_and_foot):
+    # 4.7 mm at most: the seen band follows the curved open surface. With flat triangles
+    # (curve_edge 0) 7.0 mm, on the thigh's top beside the hip and under the hand, where the
+    # cameras' view grazes and the carve does not reach
     P, L, vd, fit, shapes = with_hand_and_foot
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

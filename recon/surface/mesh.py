@@ -118,17 +118,19 @@ def face_keys(faces: np.ndarray) -> np.ndarray:
 
 def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
                      same_side: float = 0.9, stretch: float = np.inf) -> np.ndarray:
-    """(k,) longest edge (metres) of each of ``faces`` (k, 3) as its vertices' camera saw it:
-    measured across their mean viewing direction when the three were seen from one side (the
-    mean of their unit ``view_dir`` (n, 3) or (3,) at least ``same_side`` long), but at least
-    the 3D length over ``stretch``; in 3D otherwise.
+    """(k,) longest edge (metres) of each of ``faces`` (k, 3) as its vertices' cameras saw it:
+    measured across their mean viewing direction when the three were seen along one axis (the
+    mean of their unit ``view_dir`` (n, 3) or (3,), each turned to the first vertex's side, at
+    least ``same_side`` long), but at least the 3D length over ``stretch``; in 3D otherwise.
 
     The scanner samples the surface on a grid across its viewing direction, so neighbouring
     samples of one surface patch are a grid step apart across it however steeply the surface
     turns away (the flanks of a limb, the sides of the trunk: long in 3D, short to the camera);
-    a hole in what the camera saw is wide across the view. Two surfaces one behind the other are
-    also near across the view: ``stretch`` bounds how much steeper than the view a triangle may
-    stand. Without ``view_dir``: 3D.
+    a hole in what the camera saw is wide across the view. The front and rear heads look along one
+    axis from either side: where their samples meet at a flank, both sampled it on the same grid
+    across the view, so a triangle joining them is measured across it too. Two surfaces one
+    behind the other are also near across the view: ``stretch`` bounds how much steeper than the
+    view a triangle may stand. Without ``view_dir``: 3D.
     """
     longest = max_edge_length(points, faces)
     if view_dir is None or len(faces) == 0 or same_side > 1:
@@ -136,7 +138,11 @@ def view_edge_length(points: np.ndarray, faces: np.ndarray, view_dir=None,
     vd = np.asarray(view_dir, dtype=np.float64)
     for c in _chunks(len(faces)):
         f = faces[c]
-        m = vd[f].sum(axis=1) / 3 if vd.ndim == 2 else np.broadcast_to(vd, (len(f), 3))
+        if vd.ndim == 2:   # up to sign: the heads face each other along one axis
+            d = vd[f]
+            m = np.einsum("kij,ki->kj", d, np.where(np.einsum("kij,kj->ki", d, d[:, 0]) < 0, -1.0, 1.0)) / 3
+        else:
+            m = np.broadcast_to(vd, (len(f), 3))
         ln = np.sqrt(np.einsum("ij,ij->i", m, m))
         one = ln >= same_side
         if not one.any():
