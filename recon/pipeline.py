@@ -59,7 +59,7 @@ class Reconstruction:
         The correction applied to each head (``register_heads``).
     point_faces : (m', 3) int or None
         The open surface as triangles over the input points alone, before the curved subdivision
-        split its long ones (for ``proposed-closed``: the open surface it closed). Per-point data
+        split its long ones (``proposed-closed`` closes these). Per-point data
         (`point_sections`, a scan's ground truth) apply to its vertices directly. None: `faces`.
     """
 
@@ -463,17 +463,6 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     faces = keep[faces]
     unmeshed = unmeshed_count(len(raw), faces)
     point_faces = faces
-    if steps == "proposed" and params.surface.curve_edge > 0:   # long triangles follow the body
-        from .surface.curve import curve_surface
-
-        t0 = time.perf_counter()
-        kept = np.searchsorted(keep, faces)    # the faces over the kept points
-        cv, kept, face_section = curve_surface(mesh_points, kept, params.surface.curve_edge * spacing,
-                                               vd, tree, face_section)
-        new = kept >= len(keep)
-        faces = np.where(new, kept - len(keep) + len(raw), keep[np.minimum(kept, len(keep) - 1)])
-        vertices = np.concatenate([vertices, cv[len(keep):]])
-        times["curve"] = time.perf_counter() - t0
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
         from .surface.closed import closed_surface
 
@@ -487,8 +476,19 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
                                               sp.close_band, (vertices, faces, face_section),
                                               view, sp.close_carve, sp.close_background,
                                               sp.close_smooth, sp.workers)
-        vertices, faces = np.concatenate([vertices[:len(raw)], cv]), cf + len(raw)
+        vertices, faces = np.concatenate([vertices, cv]), cf + len(raw)
         times["complete"] = time.perf_counter() - t0
+    elif steps == "proposed" and params.surface.curve_edge > 0:   # long triangles follow the body
+        from .surface.curve import curve_surface
+
+        t0 = time.perf_counter()
+        kept = np.searchsorted(keep, faces)    # the faces over the kept points
+        limit = max(params.surface.curve_edge * spacing, params.surface.curve_min_edge)
+        cv, kept, face_section = curve_surface(mesh_points, kept, limit, vd, tree, face_section)
+        new = kept >= len(keep)
+        faces = np.where(new, kept - len(keep) + len(raw), keep[np.minimum(kept, len(keep) - 1)])
+        vertices = np.concatenate([vertices, cv[len(keep):]])
+        times["curve"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start
     sections = np.zeros((len(raw), member.shape[1]), dtype=bool)
     sections[keep] = member & ~rejected[:, None]
