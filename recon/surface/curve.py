@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .mesh import max_edge_length
+
 #: Phong tessellation's shape factor: 1/2 lifts a chord's midpoint onto a circle through its ends
 #: with the circle's tangents there (to second order in the arc's angle).
 SHAPE_FACTOR = 0.5
@@ -83,7 +85,7 @@ def curved_subdivision(vertices: np.ndarray, faces: np.ndarray, normals: np.ndar
     done, done_data = [], []   # faces with no long edge: no round changes them
     for _ in range(rounds):
         verts, nrm = np.concatenate(V), np.concatenate(N)
-        active = _longest(verts, F) > max_edge
+        active = max_edge_length(verts, F) > max_edge
         done.append(F[~active])
         done_data.append(None if D is None else D[~active])
         F, D = F[active], None if D is None else D[active]
@@ -132,21 +134,16 @@ def curved_subdivision(vertices: np.ndarray, faces: np.ndarray, normals: np.ndar
     return np.concatenate(V), F, D
 
 
-def _longest(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """(k,) longest edge of each of ``faces`` (k, 3)."""
-    p = vertices[faces]
-    e = p - p[:, [1, 2, 0]]
-    return np.sqrt(np.einsum("kij,kij->ki", e, e).max(axis=1))
-
-
 def curve_surface(points: np.ndarray, faces: np.ndarray, max_edge: float, view_dir=None, tree=None,
                   face_data: np.ndarray | None = None):
     """`curved_subdivision` of the outward-wound ``faces`` (k, 3) over ``points`` (n, 3), with
     `outward_normals` at the vertices of its long edges. Returns the same as it."""
     faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
-    long = faces[_longest(points, faces) > max_edge]
-    normals = outward_normals(points, faces, view_dir, tree=tree, at=np.unique(long))
-    return curved_subdivision(points, faces, normals, max_edge, face_data)
+    active = max_edge_length(points, faces) > max_edge   # the others stay as they are
+    normals = outward_normals(points, faces, view_dir, tree=tree, at=np.unique(faces[active]))
+    v, f, d = curved_subdivision(points, faces[active], normals, max_edge,
+                                 None if face_data is None else face_data[active])
+    return v, np.concatenate([faces[~active], f]), None if d is None else np.concatenate([face_data[~active], d])
 
 
 def outward_normals(points: np.ndarray, faces: np.ndarray, view_dir=None, k: int = 12, tree=None,
@@ -164,6 +161,9 @@ def outward_normals(points: np.ndarray, faces: np.ndarray, view_dir=None, k: int
     if not len(at):
         return out
     n = point_normals(points, at, np.zeros(3) if view_dir is None else view_dir, k, tree)
+    on = np.zeros(len(points), dtype=bool)
+    on[at] = True
+    faces = faces[on[faces].any(axis=1)]                      # the faces around them
     p = points[faces]
     fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])       # area-weighted, outward
     around = np.stack([np.bincount(faces.ravel(), np.repeat(fn[:, c], 3), len(points)) for c in range(3)], 1)
