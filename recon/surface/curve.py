@@ -3,7 +3,7 @@
 A chart's Delaunay triangles join samples; where the samples are far apart (the flanks of limbs
 and trunk, which the front and rear cameras see at grazing angles), a flat triangle is a chord of
 the curved body and lies inside it, by ``L**2 / (8 r)`` for an edge of length L on a radius r (7 mm
-for 66 mm on a thigh). Splitting the long edges at midpoints lifted onto the vertices' tangent
+for 66 mm on a thigh). Splitting the long edges at midpoints lifted toward the vertices' tangent
 planes (the quadratic of Phong tessellation, Boubekeur and Alexa 2008, with shape factor 1/2,
 which is exact to second order on a circle) puts the surface back where the body is. A midpoint
 depends only on its edge, so neighbouring triangles share it: the mesh keeps its connectivity,
