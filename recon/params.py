@@ -598,6 +598,9 @@ class SurfaceParams:
         _check(0 < self.cap_overlap <= 2, "cap_overlap", self.cap_overlap, "in (0, 2] mean radii")
         _check(self.max_edge_factor >= 0, "max_edge_factor", self.max_edge_factor, ">= 0 (0 = no limit)")
         _check(self.hull_edge_factor > 0, "hull_edge_factor", self.hull_edge_factor, "> 0")
+        # below a spacing every triangle would be split, again each round: 4^8 times the faces
+        _check(self.curve_edge == 0 or self.curve_edge >= 1, "curve_edge", self.curve_edge,
+               "0 (flat) or at least 1 spacing")
         _check(self.min_section_points >= 3, "min_section_points", self.min_section_points, ">= 3")
         _check(int(self.workers) >= 1, "workers", self.workers, "an integer >= 1")
         _check(-1 <= self.fold_cos <= 1, "fold_cos", self.fold_cos, "in [-1, 1] (-1 = off)")

@@ -79,3 +79,12 @@ def test_flanks_of_a_scanned_cylinder_come_back_onto_it():
     samples = np.einsum("sj,kjd->ksd", w, V[F]).reshape(-1, 3)
     assert np.abs(np.hypot(samples[:, 0], samples[:, 1]) - R).max() < 0.001
     assert len(F) > len(f)
+
+
+def test_curve_edge_below_a_spacing_is_refused():
+    # every triangle would be split each round (4^8 times the faces): a usage error, not a hang
+    from bodyscan.recon import ReconError, ReconParams
+
+    with pytest.raises(ReconError, match="curve_edge=0.5: must be 0 .flat. or at least 1 spacing"):
+        ReconParams.from_overrides({"curve_edge": "0.5"})
+    assert ReconParams.from_overrides({"curve_edge": "0"}).surface.curve_edge == 0
