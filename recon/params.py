@@ -399,7 +399,7 @@ class SurfaceParams:
         paper: 0).
     curve_edge : float
         Spacings: every edge of the open surface longer than this is split, repeatedly, at its
-        midpoint lifted onto the tangent planes of its ends (`recon.surface.curve`; normals from
+        midpoint lifted toward the tangent planes of its ends (`recon.surface.curve`; normals from
         `recon.surface.mesh.point_normals`, turned outward with the surface). A long flat triangle
         over the flank of a limb, which the cameras see at grazing angles, is a chord 5-9 mm inside
         the body; the split one follows it. The new vertices come after the input points
@@ -1014,10 +1014,12 @@ class FitParams:
 #: neighbours' erosion fronts alone, paper 3.2), no claims across joints, no adoption of
 #: unlabelled points (the paper leaves them out), the three-or-more rule copies from the nearest
 #: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
-#: points) only: no open joint ends, no fold, carving, view or concavity rule. Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one
-#: size estimate, no alternatives, no check against the cameras' view. Kept, being steps without which nothing works, and the same
-#: in ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
-#: itself (``recon.posture.match``, whose voxel score is paper 2.3).
+#: points) only: no open joint ends, no fold, carving, view or concavity rule, flat triangles.
+#: Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one size estimate,
+#: no alternatives, no check against the cameras' view. Kept, being steps without which nothing
+#: works, and the same in ``simple``: the hull peel of Delaunay's convex hull
+#: (``hull_edge_factor``), the fit's search itself (``recon.posture.match``, whose voxel score is
+#: paper 2.3).
 PAPER = {
     # clustering (paper 3.1-3.2)
     "joint_plane_weight": 0.0, "side_joint_planes": False, "joint_plane_bones": False,

@@ -460,7 +460,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     vertices = prep.points.copy()
     vertices[keep] = mesh_points
     moved = np.linalg.norm(vertices - raw, axis=1)
-    faces = keep[faces]
+    kept_faces, faces = faces, keep[faces]   # over the kept points; over the input points
     unmeshed = unmeshed_count(len(raw), faces)
     point_faces = faces
     if method == "proposed-closed":  # beyond the paper: the unseen surface closed
@@ -482,12 +482,11 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         from .surface.curve import curve_surface
 
         t0 = time.perf_counter()
-        kept = np.searchsorted(keep, faces)    # the faces over the kept points
         limit = max(params.surface.curve_edge * spacing, params.surface.curve_min_edge)
-        cv, kept, face_section = curve_surface(mesh_points, kept, limit, vd, tree, face_section)
-        new = kept >= len(keep)
-        faces = np.where(new, kept - len(keep) + len(raw), keep[np.minimum(kept, len(keep) - 1)])
-        vertices = np.concatenate([vertices, cv[len(keep):]])
+        cv, kept_faces, face_section = curve_surface(mesh_points, kept_faces, limit, vd, tree, face_section)
+        new = cv[len(keep):]                     # after every input point
+        faces = np.concatenate([keep, np.arange(len(raw), len(raw) + len(new))])[kept_faces]
+        vertices = np.concatenate([vertices, new])
         times["curve"] = time.perf_counter() - t0
     times["total"] = time.perf_counter() - t_start
     sections = np.zeros((len(raw), member.shape[1]), dtype=bool)
