@@ -313,6 +313,7 @@ def build_report(sweep_dir, out, *, pictures: bool = True, gate: GateResult | No
         _at_defaults(doc, ok, metrics)
         _best_settings(doc, ok, metrics)
         _axis_effects(doc, ok)
+        _against_clean(doc, ok)
         _figures(doc, ok, pd)
     if pictures:
         _pictures(doc, store, table)
@@ -521,6 +522,76 @@ def _axis_effects(doc, ok):
               "averaged over every other setting and posture). Noise: a range within the CI "
               "gate's absolute tolerance (F 0.01, spurious 0.5 points, bridging 0.2 points) is "
               "no effect beyond noise.")
+
+
+#: Scanner conditions a clean scan lacks (`simulator.ScannerConfig`): at their lowest level a scan
+#: is the reference the others are measured against (`_against_clean`).
+CONDITIONS = ("scanner.noise_sigma", "scanner.outlier_fraction", "scanner.misalign_deg",
+              "scanner.misalign_mm")
+#: Budgets against the clean scan (issue 19): spurious area at most this many times the clean
+#: scan's, and F_seen@5mm at most this far below it.
+SPURIOUS_RATIO, F_DROP = 1.5, 0.01
+
+
+def against_clean(table):
+    """Each job of a swept scanner condition (`CONDITIONS`) beside the same job on the clean scan.
+
+    The clean scan is the same method, posture, seed and other settings with every swept
+    condition at its lowest level in ``table`` (the successful jobs of a sweep). Returns a
+    DataFrame with a row per method and level, over the jobs that have a clean twin:
+    ``method``, ``condition`` (the levels, as text), ``jobs``, ``ratio_median``, ``ratio_max``
+    (spurious area over the clean scan's), ``within_ratio`` (jobs within `SPURIOUS_RATIO`),
+    ``df_mean``, ``df_worst`` (F_seen@5mm minus the clean scan's) and ``within_f`` (jobs within
+    `F_DROP`); None when no condition is swept.
+    """
+    import numpy as np
+    import pandas as pd
+
+    axes = [c for c in CONDITIONS if c in _param_columns(table)]
+    spur, f = "spurious_area_fraction", "fscore_seen@5mm"
+    if not axes or spur not in table.columns or f not in table.columns:
+        return None
+    rest = [c for c in _param_columns(table) if c not in axes]
+    keys = ["method", "body", "seed"] + rest
+    t = table.copy()
+    for c in keys:                       # NaN (a setting a method does not take) groups as text
+        t[c] = t[c].map(str)
+    level = t[axes].astype(float)
+    clean = (level == level.min()).all(axis=1)
+    ref = t[clean].drop_duplicates(keys).set_index(keys)[[spur, f]]
+    other = t[~clean].join(ref.add_suffix("_clean"), on=keys, how="inner")
+    if other.empty:
+        return None
+    with np.errstate(divide="ignore", invalid="ignore"):
+        other["ratio"] = np.where(other[spur + "_clean"] > 0, other[spur] / other[spur + "_clean"],
+                                  np.where(other[spur] > 0, np.inf, 1.0))
+    other["df"] = other[f] - other[f + "_clean"]
+    other["condition"] = other[axes].astype(float).apply(
+        lambda r: ", ".join(f"{a[len('scanner.'):]}={v:g}" for a, v in r.items()), axis=1)
+    rows = []
+    for (method, cond), g in other.groupby(["method", "condition"], sort=True):
+        rows.append(dict(method=method, condition=cond, jobs=len(g),
+                         ratio_median=float(g["ratio"].median()), ratio_max=float(g["ratio"].max()),
+                         within_ratio=int((g["ratio"] <= SPURIOUS_RATIO).sum()),
+                         df_mean=float(g["df"].mean()), df_worst=float(g["df"].min()),
+                         within_f=int((g["df"] >= -F_DROP).sum())))
+    return pd.DataFrame(rows)
+
+
+def _against_clean(doc, ok):
+    """The report's section of `against_clean`."""
+    res = against_clean(ok)
+    if res is None or res.empty:
+        return
+    doc.heading("Against the clean scan")
+    doc.table(["method", "condition", "jobs", "spurious x clean (median, worst)",
+               f"within {SPURIOUS_RATIO:g}x", "ΔF (mean, worst)", f"within {F_DROP:g} F"],
+              [[r.method, r.condition, r.jobs, f"{r.ratio_median:.2f}, {r.ratio_max:.2f}",
+                f"{r.within_ratio}/{r.jobs}", f"{r.df_mean:+.4f}, {r.df_worst:+.4f}",
+                f"{r.within_f}/{r.jobs}"] for r in res.itertuples()],
+              "Each job beside the same method, posture, seed and settings on the clean scan (the "
+              "swept conditions at their lowest level): its spurious area over the clean scan's, "
+              "and its F_seen@5mm minus the clean scan's. A job whose clean twin failed is left out.")
 
 
 # -- figures ------------------------------------------------------------------------------------

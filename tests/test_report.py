@@ -328,3 +328,39 @@ def test_worst_cases_are_distinct_meshes(tmp_path):
     drawn = re.findall(r"!\[#(\d+) proposed / (\w+) \(([^)]*)\)\]", md)
     assert [(n, body) for n, body, _ in drawn] == [("1", "standing"), ("2", "t_pose")], drawn
     assert "t_n_factor=0.1" in drawn[0][2]      # the first of the equally bad settings
+
+
+def test_against_clean_scan(tmp_path):
+    """Jobs on noisy scans beside the same job without noise: known ratios and F changes; a job
+    whose clean twin failed is left out."""
+    store = ResultStore(tmp_path / "sweep").open_for_writing()
+    for body, method, t_d, noise in itertools.product(BODIES, ("proposed", "bpa"), T_D, (0.0, 0.001, 0.002)):
+        if method == "bpa" and t_d != T_D[0]:
+            continue
+        recon = {"t_d": t_d} if method == "proposed" else {}
+        job = Job(f"{body}-{method}-{t_d}-{noise}".replace(".", "p"), f"s-{body}-{noise}", body, 0,
+                  {"preset": "scanner", "noise_sigma": noise}, method, recon)
+        row = job.row()
+        clean_spur = 0.01 * t_d / 0.1 if method == "proposed" else 0.02
+        failed = method == "bpa" and body == "t_pose" and noise == 0.0
+        row.update(status="error" if failed else "ok", error="ReconError" if failed else None,
+                   traceback=None, wall_s=1.0, worker="h:1", finished_at=0.0)
+        if not failed:
+            row.update(spurious_area_fraction=clean_spur * (1 + 400 * noise),
+                       bridging_area_fraction=0.0, **{"fscore_seen@5mm": 0.95 - 8 * noise})
+        store.put(row)
+    store.write_json("meta.json", {"sweep": "noise", "git_commit": "0123456789abcdef", "runs": []})
+    table = store.read()
+    res = report.against_clean(table[table["status"] == "ok"]).set_index(["method", "condition"])
+    one, two = res.loc[("proposed", "noise_sigma=0.001")], res.loc[("proposed", "noise_sigma=0.002")]
+    assert one.jobs == two.jobs == 4                   # 2 postures x 2 values of t_d
+    assert one.ratio_median == pytest.approx(1.4) and one.ratio_max == pytest.approx(1.4)
+    assert two.ratio_max == pytest.approx(1.8)
+    assert (one.within_ratio, two.within_ratio) == (4, 0)
+    assert one.df_mean == pytest.approx(-0.008) and two.df_worst == pytest.approx(-0.016)
+    assert (one.within_f, two.within_f) == (4, 0)          # -0.008 is within 0.01, -0.016 is not
+    assert res.loc[("bpa", "noise_sigma=0.001")].jobs == 1   # t_pose's clean scan failed
+    md = (report.build_report(tmp_path / "sweep", tmp_path / "rep", pictures=False).parent
+          / "report.md").read_text()
+    assert "## Against the clean scan" in md and "| proposed | noise_sigma=0.002 | 4 | 1.80, 1.80 | 0/4 |" in md
+    assert report.against_clean(table[table["scanner.noise_sigma"] == 0.0]) is None   # nothing swept

@@ -418,3 +418,8 @@ def test_shipped_sweep_files():
     drawn = [b for b in ci.bodies if b.startswith("s1000_")]
     assert len(ci.bodies) == 13 and [b[:10] for b in drawn] == [f"s1000_{i:04d}" for i in range(10)]
     assert len(ci.jobs()) == 13 * 2 * 3
+    noise = load_sweep(SWEEPS_DIR / "noise.yaml")        # the library at three noise levels
+    jobs = noise.jobs()
+    assert len(jobs) == 21 * 3 * 3 and len({j.scan_id for j in jobs}) == 21 * 3
+    assert {j.scanner["noise_sigma"] for j in jobs} == {0.0, 0.001, 0.002}
+    assert {j.scanner["preset"] for j in jobs} == {"scanner"}
