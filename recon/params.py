@@ -638,6 +638,9 @@ class CleanParams:
     denoise: bool = field(default=True, metadata={
         "help": "proposed: mesh each point moved onto the robust local surface of its section",
         "unit": "", "range": None})
+    denoise_passes: int = field(default=2, metadata={
+        "help": "denoising projections where the noise widened the fits: each moves the points onto "
+                "the surfaces fitted again to where the last one put them", "unit": "", "range": (1, None)})
     denoise_neighbours: int = field(default=40, metadata={
         "help": "points of each denoising fit", "unit": "", "range": (10, None)})
     denoise_radius: float = field(default=0.02, metadata={
@@ -671,6 +674,7 @@ class CleanParams:
         _check(int(self.outlier_neighbours) >= 6, "outlier_neighbours", self.outlier_neighbours, "an integer >= 6")
         _check(int(self.denoise_neighbours) >= 10, "denoise_neighbours", self.denoise_neighbours,
                "an integer >= 10")
+        _check(int(self.denoise_passes) >= 1, "denoise_passes", self.denoise_passes, "an integer >= 1")
         _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
         _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
         _check(self.denoise_error >= 0, "denoise_error", self.denoise_error, ">= 0 spacings")

@@ -439,7 +439,8 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         radius = [c.denoise_radius] * (groups.shape[1] + parts.shape[1]) + [c.denoise_reach] * hands.shape[1]
         dn = denoise(p, np.hstack([groups, parts, hands]), spacing, c.denoise_neighbours, c.denoise_clamp,
                      c.outlier_z or np.inf, c.outlier_floor, c.outlier_isolation, radius,
-                     params.surface.workers, c.denoise_share, c.denoise_error, c.denoise_reach)
+                     params.surface.workers, c.denoise_share, c.denoise_error, c.denoise_reach,
+                     c.denoise_passes)
         mesh_points, rejected = dn.points, dn.rejected
         meshed = meshed & ~rejected[:, None]
         times["denoise"] = time.perf_counter() - t0

@@ -352,12 +352,15 @@ class Denoised:
         Points farther from their section's fit than the outlier threshold (not meshed).
     scale : float
         Robust scale of the residuals, metres.
+    widened : bool
+        The noise widened some section's fits (see `denoise`'s ``error``).
     """
 
     points: np.ndarray
     moved: np.ndarray
     rejected: np.ndarray
     scale: float
+    widened: bool = False
 
 
 def fit_size(noise: float, spacing: float, error: float, neighbours: int, radius: float) -> int:
@@ -376,8 +379,12 @@ def fit_size(noise: float, spacing: float, error: float, neighbours: int, radius
 def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: int = 40,
             clamp: float = 3.0, z: float = 5.0, floor: float = 1.0, isolation: float = 1.5,
             radius: float = 0.02, workers: int = 1, share: float = 3.0, error: float = 0.0,
-            reach: float = 0.012) -> Denoised:
-    """Move each point onto the robust surface fitted to its section's points near it.
+            reach: float = 0.012, passes: int = 1) -> Denoised:
+    """Move each point onto the robust surface fitted to its section's points near it; where the
+    noise widened the fits, up to ``passes`` times onto the surfaces fitted again to the moved
+    points (a moving least squares projection, iterated: each pass takes out part of the noise
+    the last fits kept; a noise-free or coarse scan is projected once). Outliers are those of the
+    first pass, which also gives the scale.
 
     Parameters
     ----------
@@ -419,10 +426,27 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         Widened fits take their points within this distance, metres (and at most as many as a
         surface holds there): widening trades the noise for the quadratic's error on a curved
         limb or a hand, which grows fast with the fit's size.
+    passes : int
+        Projections at most (at least 1), where the noise widened the fits; the later ones leave
+        the first pass's outliers out and where they are.
     Returns
     -------
     Denoised
     """
+    if int(passes) < 1:
+        raise ValueError(f"passes must be at least 1, got {passes}")
+    args = (spacing, neighbours, clamp, z, floor, isolation, radius, workers, share, error, reach)
+    out = _project(points, member, *args)
+    for _ in range(int(passes) - 1 if out.widened else 0):
+        again = _project(out.points, member & ~out.rejected[:, None], *args)
+        moved = np.where(out.rejected[:, None], out.points, again.points)
+        out = Denoised(moved, np.linalg.norm(moved - points, axis=1), out.rejected, out.scale, True)
+    return out
+
+
+def _project(points, member, spacing, neighbours, clamp, z, floor, isolation, radius, workers, share,
+             error, reach) -> Denoised:
+    """One pass of `denoise`."""
     from scipy.spatial import cKDTree
 
     n = len(points)
@@ -463,11 +487,12 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
         return idx, far, fit.at(sub, near), k > neighbours
 
-    fits = []
+    fits, widened = [], False
     for done in _map(section, range(member.shape[1]), workers):
         if done is not None:
             idx, far, fit, noisy = done
             alone[idx] &= far
+            widened |= bool(noisy)
             fits.append((idx, fit, max(clamp, z) if noisy else clamp))
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
@@ -481,4 +506,4 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
     rejected = (resid > max(z * scale, floor * spacing)) & alone
     shift[rejected] = 0.0
     moved = np.linalg.norm(shift, axis=1)
-    return Denoised(points + shift, moved, rejected, scale)
+    return Denoised(points + shift, moved, rejected, scale, widened)
