@@ -547,11 +547,12 @@ def against_clean(table):
     import numpy as np
     import pandas as pd
 
-    axes = [c for c in CONDITIONS if c in _param_columns(table)]
+    swept = _param_columns(table)
+    axes = [c for c in CONDITIONS if c in swept]
     spur, f = "spurious_area_fraction", "fscore_seen@5mm"
     if not axes or spur not in table.columns or f not in table.columns:
         return None
-    rest = [c for c in _param_columns(table) if c not in axes]
+    rest = [c for c in swept if c not in axes]
     keys = ["method", "body", "seed"] + rest
     t = table.copy()
     for c in keys:                       # NaN (a setting a method does not take) groups as text
@@ -581,7 +582,7 @@ def against_clean(table):
 def _against_clean(doc, ok):
     """The report's section of `against_clean`."""
     res = against_clean(ok)
-    if res is None or res.empty:
+    if res is None:
         return
     doc.heading("Against the clean scan")
     doc.table(["method", "condition", "jobs", "spurious x clean (median, worst)",
