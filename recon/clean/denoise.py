@@ -427,73 +427,97 @@ def denoise(points: np.ndarray, member: np.ndarray, spacing: float, neighbours: 
         surface holds there): widening trades the noise for the quadratic's error on a curved
         limb or a hand, which grows fast with the fit's size.
     passes : int
-        Projections at most (at least 1), where the noise widened the fits; the later ones leave
-        the first pass's outliers out and where they are.
+        Projections at most (at least 1), where the noise widened the fits. The later ones fit
+        the same neighbourhoods (the moved points hardly change them, and finding them is more
+        than half of a pass); the first pass's outliers stay where they are, and have no say in
+        the later fits beyond a fit's `MIN_FIT` nearest points.
+
     Returns
     -------
     Denoised
     """
     if int(passes) < 1:
         raise ValueError(f"passes must be at least 1, got {passes}")
-    args = (spacing, neighbours, clamp, z, floor, isolation, radius, workers, share, error, reach)
-    out = _project(points, member, *args)
+    radii = np.broadcast_to(np.asarray(radius, dtype=float), member.shape[1:])
+    plans = [p for p in _map(lambda j: _plan(points, np.flatnonzero(member[:, j]), spacing, neighbours,
+                                             isolation, float(radii[j]), share, error, reach),
+                             range(member.shape[1]), workers) if p is not None]
+    out = _project(points, plans, spacing, clamp, z, floor, workers)
     for _ in range(int(passes) - 1 if out.widened else 0):
-        again = _project(out.points, member & ~out.rejected[:, None], *args)
+        again = _project(out.points, plans, spacing, clamp, z, floor, workers, out.rejected)
         moved = np.where(out.rejected[:, None], out.points, again.points)
         out = Denoised(moved, np.linalg.norm(moved - points, axis=1), out.rejected, out.scale, True)
     return out
 
 
-def _project(points, member, spacing, neighbours, clamp, z, floor, isolation, radius, workers, share,
-             error, reach) -> Denoised:
-    """One pass of `denoise`."""
+@dataclass(frozen=True, eq=False)
+class _Plan:
+    """Where one section's fits are made: its points ``idx`` (p,), those alone ``far`` (p,)
+    bool, the fits' centres (c,) and neighbours ``nb``, ``distance`` (c, k) (indices into
+    ``idx``), their ``radius``, each point's fits to blend ``near`` (p, b), and whether the noise
+    widened them."""
+
+    idx: np.ndarray
+    far: np.ndarray
+    centres: np.ndarray
+    nb: np.ndarray
+    distance: np.ndarray
+    radius: float
+    near: np.ndarray
+    widened: bool
+
+
+def _plan(points, idx, spacing, neighbours, isolation, radius, share, error, reach) -> _Plan | None:
+    """The neighbourhoods of `denoise`'s fits over the section ``idx`` of ``points`` (None when
+    it has too few points)."""
     from scipy.spatial import cKDTree
 
+    k = int(min(neighbours, len(idx)))
+    if k < 10:
+        return None
+    sub = points[idx]
+    tree = cKDTree(sub)
+    rad = radius
+    if error > 0 and len(idx) > k:  # the section's noise, from leave-one-out fits of k points
+        pilot = _sample(len(sub), SAMPLE // 5)
+        d, nb = tree.query(sub[pilot], k=k + 1)
+        fit = local_fits(sub, sub[pilot], nb[:, 1:], distance=d[:, 1:], radius=radius)
+        k = min(fit_size(robust_scale(fit.residual), spacing, error, k, min(radius, reach)), len(idx))
+        rad = radius if k <= neighbours else min(radius, reach)
+    if share <= 0:  # a fit at every point
+        d, nb = tree.query(sub, k=k)
+        return _Plan(idx, d[:, 1] > isolation * spacing, np.arange(len(idx)), nb, d, rad,
+                     np.arange(len(idx))[:, None], k > neighbours)
+    far = _isolated(tree, sub, isolation * spacing)
+    # a fit centred on each isolated point (it is tested as an outlier on its own fit)
+    # widened fits are shared over wider cubes: as many fits overlap each point whatever k
+    thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
+    centres = np.concatenate([thin[~far[thin]], np.flatnonzero(far)])
+    d, nb = tree.query(sub[centres], k=k)
+    near = cKDTree(sub[centres]).query(sub, k=min(BLEND, len(centres)))[1].reshape(len(sub), -1)
+    near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
+    return _Plan(idx, far, centres, nb, d, rad, near, k > neighbours)
+
+
+def _project(points, plans, spacing, clamp, z, floor, workers, left_out=None) -> Denoised:
+    """One pass of `denoise`: the sections' fits made as ``plans`` say, over ``points`` (the
+    points ``left_out`` (n,) bool, if given, count as beyond the fits' radius)."""
     n = len(points)
     shift = np.zeros((n, 3))
     count = np.zeros(n)
     resid = np.zeros(n)
     alone = np.ones(n, dtype=bool)
 
-    radii = np.broadcast_to(np.asarray(radius, dtype=float), member.shape[1:])
-
-    def section(j):
-        idx = np.flatnonzero(member[:, j])
-        radius = float(radii[j])
-        k = int(min(neighbours, len(idx)))
-        if k < 10:
-            return None
-        sub = points[idx]
-        tree = cKDTree(sub)
-        rad = radius
-        if error > 0 and len(idx) > k:  # the section's noise, from leave-one-out fits of k points
-            pilot = _sample(len(sub), SAMPLE // 5)
-            d, nb = tree.query(sub[pilot], k=k + 1)
-            fit = local_fits(sub, sub[pilot], nb[:, 1:], distance=d[:, 1:], radius=radius)
-            k = min(fit_size(robust_scale(fit.residual), spacing, error, k, min(radius, reach)), len(idx))
-            rad = radius if k <= neighbours else min(radius, reach)
-        if share <= 0:
-            d, nb = tree.query(sub, k=k)
-            fit = local_fits(sub, sub, nb, distance=d, radius=rad)
-            return idx, d[:, 1] > isolation * spacing, fit, k > neighbours
-        far = _isolated(tree, sub, isolation * spacing)
-        # a fit centred on each isolated point (it is tested as an outlier on its own fit)
-        # widened fits are shared over wider cubes: as many fits overlap each point whatever k
-        thin = _thin(sub, min(share * spacing * np.sqrt(max(k / neighbours, 1.0)), radius / 2))
-        centres = np.concatenate([thin[~far[thin]], np.flatnonzero(far)])
-        d, nb = tree.query(sub[centres], k=k)
-        fit = local_fits(sub, sub[centres], nb, distance=d, radius=rad)
-        near = cKDTree(sub[centres]).query(sub, k=min(BLEND, len(centres)))[1].reshape(len(sub), -1)
-        near[far] = np.arange(len(centres) - far.sum(), len(centres))[:, None]
-        return idx, far, fit.at(sub, near), k > neighbours
+    def section(p):
+        sub = points[p.idx]
+        d = p.distance if left_out is None else np.where(left_out[p.idx][p.nb], np.inf, p.distance)
+        return local_fits(sub, sub[p.centres], p.nb, distance=d, radius=p.radius).at(sub, p.near)
 
     fits, widened = [], False
-    for done in _map(section, range(member.shape[1]), workers):
-        if done is not None:
-            idx, far, fit, noisy = done
-            alone[idx] &= far
-            widened |= bool(noisy)
-            fits.append((idx, fit, max(clamp, z) if noisy else clamp))
+    for p, fit in zip(plans, _map(section, plans, workers)):
+        alone[p.idx] &= p.far
+        widened |= p.widened
+        fits.append((p.idx, fit, max(clamp, z) if p.widened else clamp))
     if not fits:
         return Denoised(points.copy(), np.zeros(n), np.zeros(n, dtype=bool), 0.0)
     scale = robust_scale(np.concatenate([f.residual for _, f, _ in fits]))
