@@ -22,6 +22,8 @@ FIT_LOSSES = ("linear", "soft_l1", "huber", "cauchy", "arctan")
 class ClusterParams:
     """Clustering of the points into body sections (paper section 3).
 
+    The measurements behind the chosen values are in docs/tuning.md.
+
     Attributes
     ----------
     t_d : float
@@ -32,13 +34,7 @@ class ClusterParams:
     t_n_factor : float
         T_n = the cell histogram's maximum frequency times this factor (paper section 4.2; the
         factor is lost in the text). A cell is single-peaked, and kept whole, when more than T_n
-        points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep
-        (``python -m bodyscan.benchmarks.perf_recon --sweep-tn --oracle``: paper scans of arms_close,
-        hands_on_hips, arm_across, seated, squat and standing, oracle posture; means of section
-        accuracy / spurious / bridging area fractions): 0 -> 0.916 / 0.057 / 0.0046,
-        0.25 -> 0.916 / 0.057 / 0.0046, 0.5 -> 0.916 / 0.057 / 0.0043, 1 -> 0.923 / 0.057 /
-        0.0046, always split -> 0.923 / 0.061 / 0.0045. The refinement matters little once the
-        multi-section rules run; 0.5 has the least bridging (1 gains accuracy on the squat only).
+        points lie within ``near_band`` of its Otsu threshold. Chosen by a sweep.
     otsu_bins : int
         Bins of each cell's histogram of r, spanning that cell's r range (paper silent).
     near_band : float
@@ -62,60 +58,29 @@ class ClusterParams:
     joint_plane_weight : float
         Joint rule: weight of the model's joint plane against the erosion fronts (paper silent:
         its rule uses the neighbours only; 0 keeps that). See `recon.clustering.cluster.resolve_joints`.
-        Chosen on the 21 shipped postures (`paper` scans, oracle posture; mean "truth among the
-        point's sections" / spurious / bridging area fractions): 0 -> 0.945 / 0.041 / 0.0050,
-        0.25 -> 0.947 / 0.041 / 0.0051, 0.5 -> 0.949 / 0.041 / 0.0049, 1 -> 0.951 / 0.041 /
-        0.0049, 2 -> 0.952 / 0.042 / 0.0049, 4 -> 0.953 / 0.042 / 0.0049 (squat: 0.87 at 0, 0.91 at
-        1, 0.92 at 4); 1 gains most without more spurious area; it helps most at the neck, elbows
-        and bent knees. The plane passes through the distal section's end, or through the middle
-        of the two columns' overlap where they overlap (chosen: with the other rules of this
-        release, mean truth among labels 0.958 -> 0.959, min 1/m-scored 0.911 -> 0.916; through
-        the middle of the two ends also where they leave a gap, the capsule body of
-        tests/test_pipeline.py, whose chest and head leave 3 cm, fell 0.937 -> 0.926).
-        Swept again with the planes of ``mitre_band``, ``side_joint_planes`` and the overlap
-        (truth among labels mean / squat, 1/m-scored min, heavy_standing's bridging): 0.5 ->
-        0.956 / 0.911, 0.897, 0.60 %; 1 -> 0.959 / 0.930, 0.916, 0.60 %; 2 -> 0.961 / 0.943,
-        0.927, 0.74 %; 4 and 8 -> 0.962 / 0.947, 0.926, 0.74 %; but the capsule body falls 0.937
-        -> 0.933 at 2 and 0.928 at 4 (the plane gives a dome around a narrower child to the
-        child): kept 1.
+        The plane passes through the distal section's end, or through the middle of the two
+        columns' overlap where they overlap (``joint_plane_overlap_middle``). Chosen.
     side_joint_planes : bool
         Joint rule: at a side joint whose joint lies beside the proximal column (the shoulders),
         the plane through the joint across the distal axis also votes (chosen; paper silent; see
-        `recon.clustering.cluster.joint_plane_score`). Measured on the 21 shipped postures (oracle posture,
-        ``python -m bodyscan.benchmarks.recon_table``; mean truth among labels / mean and min 1/m-scored
-        accuracy): False 0.955 / 0.941 / 0.909, True 0.958 / 0.943 / 0.911, spurious 0.041 and
-        bridging 0.47 % unchanged; at every side joint including the hips (whose joint lies
-        beyond the waist's column) 0.951 / 0.939 / 0.916: the hips keep no plane. Its cost:
-        oracle seated's spurious area 0.041 -> 0.049 (shoulder-top points meshed with the chest);
-        with the estimated posture (same fits), mean accuracy 0.798 -> 0.797, bridging 1.32 ->
-        1.30 %, spurious 0.048 both. The plane votes only along the distal column, not in its
-        cap: voting there too gave 0.959 / 0.946 / 0.913, but took the dome of the capsule
-        body's arm (tests/test_pipeline.py) to the chest (0.937 -> 0.935).
+        `recon.clustering.cluster.joint_plane_score`). The hips, whose joint lies beyond the waist's
+        column, keep no plane; the plane votes only along the distal column, not in its cap.
     three_keep_nearest : float
         Three-or-more rule: a point that lies on a section's surface (nearer than this many of
         that section's widths) copies only from a neighbour that is also in that section
         (chosen; paper 3.2 says "the nearest point with fewer labels"; 0: the paper's rule).
-        Measured on the 21 shipped postures (`paper` scans, ``python -m bodyscan.benchmarks.recon_table``
-        and the same fits with each value): oracle posture, heavy_standing, whose arms touch the
-        chest below the shoulders, 0.940 -> 0.951 truth among labels, bridging 1.06 % -> 0.60 %,
-        spurious 0.044 -> 0.036, the other postures within 0.001. Estimated posture (means):
-        0 -> accuracy 0.795 / spurious 0.0488 / bridging 1.28 %; 0.1 -> 0.797 / 0.0482 / 1.30 %;
-        any distance (no limit) -> 0.797 / 0.0484 / 1.37 % (a misplaced section's surface is no
-        evidence). Without it, arm points in chest, waist and arm copy the labels of the nearest
-        torso point and are meshed with the chest.
+        Without it, arm points in chest, waist and arm copy the labels of the nearest torso point
+        and are meshed with the chest; the limit is needed, as a misplaced section's surface is no
+        evidence.
     joint_plane_overlap_middle : bool
         The joint plane through the middle of the two columns' overlap, where they overlap, rather
-        than through the distal section's end (chosen: see ``joint_plane_weight``).
+        than through the distal section's end (chosen).
     mitre_band : float
         Joint plane: it is the mitre of the two axes only where the joint lies within this many
         widths of the distal section's end; where the joint lies further inside the distal
         section, the plane is the proximal section's cross-section, and vice versa (chosen; see
         `recon.clustering.cluster.joint_plane_score`: the spine bends at the chest joint, 0.46 widths above
-        the chest section's lower end, and the body below the bend follows the waist). Measured on
-        the 21 shipped postures (oracle posture, ``python -m bodyscan.benchmarks.recon_table``; mean truth
-        among labels / min 1/m-scored accuracy): always the mitre (inf, before) 0.952 / 0.895,
-        0.05 -> 0.955 / 0.909, 0.1 -> 0.955 / 0.909, 0.3 -> 0.954 / 0.903; no posture worse,
-        spurious and bridging unchanged (squat 0.910 -> 0.923, its waist>chest loss 3.1 -> 2.3 %).
+        the chest section's lower end, and the body below the bend follows the waist).
     joint_plane_bones : bool
         Joint plane at the end joints (chest, neck, elbows, knees): the bones' directions from the
         fit's seams (`recon.model.BodyFit.seams`) instead of the columns' axes (paper silent; see
@@ -123,64 +88,34 @@ class ClusterParams:
         changes bones; the estimated waist's column stands more upright than the lumbar spine (the
         chest joint lies behind the pelvis joint), and its plane cut the front of the chest too
         low: truth waist labelled chest at the front, truth chest labelled waist at the back.
-        Measured (21 shipped postures, `paper` scans, the clustering alone on the same fits, with
-        ``claim_across_joints``; mean truth among labels): oracle posture 0.9690 both (its axes
-        run between the joints); estimated posture False 0.9516, True 0.9537 (the 13
-        average_male postures 0.9509 -> 0.9533, the other 8 0.9526 -> 0.9543); only P's bone
-        and only where the plane is P's cross-section (the chest joint), 0.9527.
     side_plane_tilt : float
         The shoulders' plane (``side_joint_planes``), the arm's cross-section through the joint,
         is tilted toward the body's midline by this (the tangent of the tilt; paper silent; see
-        `recon.clustering.cluster.joint_plane_score`): the body file's upper arm includes the deltoid, which
-        caps the joint from outside, and its chest reaches below the joint on the armpit's side.
-        Chosen on the 13 average_male postures (`paper` scans, the clustering alone on the same
-        fits; mean truth among labels, oracle / estimated posture): 0 -> 0.9674 / 0.9533; 0.4 ->
-        0.9689 / 0.9538; 0.5 -> 0.9691 / 0.9539; 0.7 -> 0.9694 / 0.9540; 1 -> 0.9697 / 0.9543;
-        1.5 -> 0.9698 / 0.9543; 2 -> 0.9698 / 0.9542; 3 -> 0.9697 / 0.9537; through a point 0.1
-        arm widths above or below the joint instead, at 0.6: 0.9692 / 0.9537, 0.9685 / 0.9541.
-        (This sweep without the guard of `recon.clustering.cluster._tilt_to_midline` against arms along the
-        shoulder line; with it, at 1: 0.9700 / 0.9546.) The other 8 postures (not used to
-        choose), 0 -> 1: 0.9716 -> 0.9726 / 0.9543 -> 0.9555.
+        `recon.clustering.cluster.joint_plane_score`, guarded by
+        `recon.clustering.cluster._tilt_to_midline` against arms along the shoulder line): the
+        body file's upper arm includes the deltoid, which caps the joint from outside, and its
+        chest reaches below the joint on the armpit's side. Chosen.
     claim_across_joints : float
         A point claimed by one section alone, inside the column of an adjacent section and on that
         section's side of their joint plane (within this many widths of the distal section), goes
         to the adjacent section (paper silent; 0: off; see `recon.clustering.cluster.claim_across_joints`).
         The T_d shell misses the body where it lies deeper than T_d inside a column near a joint:
         the base of the neck and the trapezius inside the chest's column are claimed by the head
-        alone (truth chest, labelled head: 0.3-0.7 % of the points of every adult body, oracle
-        posture), likewise around the knees. Measured (21 shipped postures, `paper` scans, the
-        clustering alone on the same fits; mean truth among labels, oracle / estimated posture):
-        off 0.9589 / 0.9502; 0.25 -> 0.9688 / 0.9509; 0.5 -> 0.9690 / 0.9516; 1 and 2 -> 0.9690 /
-        0.9517 (chosen 0.5: the same gain, a bounded neighbourhood of the joint). Moving the points
-        after the joint rule instead of before it (their fronts unchanged) gained less: 0.9655 /
-        0.9514. Only at the neck: 0.9652 / 0.9510; only at the knees: 0.9627 / 0.9509.
+        alone, likewise around the knees. Chosen.
     hip_planes : bool
         With the hips flexed (no crotch found along the thighs, `recon.posture.joints.find_crotch`), the
         joint rule's plane at the hips is the groin's crease (paper silent; see
         `recon.clustering.cluster.joint_plane_score` and `recon.clustering.cluster.flexed_hip_plane`): the mitre of the
         waist's downward axis and the thigh's axis, tilted out by ``hip_plane_tilt``,
-        ``hip_plane_offset`` thigh widths past the hip joint. Before (False), a flexed hip whose
-        joint lay within the waist's length got the shoulders' plane, the thigh's cross-section
+        ``hip_plane_offset`` thigh widths past the hip joint. Without it (False), a flexed hip whose
+        joint lies within the waist's length gets the shoulders' plane, the thigh's cross-section
         through the joint, which gave the lower belly above a squatting thigh to the thigh; upright
-        hips keep no plane either way. Measured (21 shipped postures, `paper` scans at k = 1, 2, 3,
-        the clustering alone on the same estimated fits; mean truth among labels): False 0.9629 /
-        0.9628 / 0.9520 (k = 1 / 2 / 3), True 0.9637 / 0.9634 / 0.9525; only the three flexed
-        postures change, at every k for the better: squat 0.9451 / 0.9637 / 0.8470 -> 0.9541 /
-        0.9637 / 0.8526, seated 0.9639 / 0.9658 / 0.9608 -> 0.9673 / 0.9714 / 0.9624, knee_raised
-        0.9651 / 0.9679 / 0.9701 -> 0.9700 / 0.9756 / 0.9732; oracle posture (k = 1) 0.9710 ->
-        0.9719 (seated 0.9503 -> 0.9592, squat 0.9624 -> 0.9679). Also at upright hips, through
-        the crotch seen in the points: k = 1 0.9647, but k = 3 down on the upright postures (the
-        crotch is found 2.6-5.4 cm high there: standing 0.9686 -> 0.9643, a_pose 0.9688 ->
-        0.9626); through the fitted hip joint: k = 1 child_arms_raised 0.9614 -> 0.9533,
-        tall_walking 0.9465 -> 0.9391.
+        hips keep no plane either way.
     hip_plane_tilt : float
-        Outward tilt of the hips' planes, the tangent (measured, not swept: a plane fitted to the
-        waist and thigh labels within 16 cm of each hip, oracle posture, all 42 hips of the
-        shipped bodies, upright and flexed alike: its normal 0.82-0.91 along the mitre and
-        0.40-0.56 outward).
+        Outward tilt of the hips' planes, the tangent (measured on the labels, not swept).
     hip_plane_offset : float
-        Thigh widths past the hip joint along the plane's normal (measured as the tilt: 2.5 cm,
-        sd 0.4, 0.148 widths of a 17 cm thigh).
+        Thigh widths past the hip joint along the plane's normal (measured on the labels, as the
+        tilt).
     max_rounds : int
         Rounds of the three-or-more rule, of the two-section rule and of label adoption before
         the remaining points are settled by their distance to the model (paper silent; the joint
@@ -265,6 +200,8 @@ class ClusterParams:
 class SurfaceParams:
     """Per-section surfaces by 2D Delaunay on the model surface (paper section 3.3).
 
+    The measurements behind the chosen values are in see above.
+
     Attributes
     ----------
     seam_overlap : float
@@ -307,26 +244,13 @@ class SurfaceParams:
         see `recon.surface.mesh.chart_agreement`); such a triangle whose longest 3D edge is also longer
         than ``fold_edge_factor`` median spacings is removed (paper: none; ``fold_cos = -1``
         switches it off; ``proposed`` only: ``simple`` keeps the paper's surface, as for the
-        inner triangles; applied to ``simple`` too it lowered simple's mean spurious fraction
-        from 0.128 to 0.074 on the oracle postures, proposed still below it on 21/21). The
-        reason is geometric, not the length: where the surface folds back over the chart (curled
-        fingers over the palm, in the forearm's column chart at 10 mm), the two layers' points
-        interleave in 2D and Delaunay joins them with triangles flipped against the chart, in
-        the air; a short flipped triangle turns around the fold's rim, which
-        is surface, so only the long ones (longer than the hull peel's limit) are joins across
-        the fold. A hole in the data, covered by the paper, is not flipped and stays covered.
-        (chosen) Measured on the 21 shipped postures (`paper` scans; mean bridging area fraction of
-        ``proposed`` and postures under 0.5 % / mean spurious fraction / mean area neither
-        spurious nor bridging, m^2): oracle posture: off 0.469 %, 12/21 / 0.0404 / 1.4641;
-        fold_cos 0 with factor 4: 0.366 %, 16/21 / 0.0340 / 1.4551 (standing 0.49 -> 0.27 %,
-        hands_on_hips 0.74 -> 0.19 %, knee_raised 0.60 -> 0.26 %, tall_standing 0.65 -> 0.39 %);
-        factor 0, 2 or 6: the same bridging, 0.0338 to 0.0341 / 1.4524 to 1.4554; fold_cos -0.5:
-        0.366 %, 0.0351; fold_cos 0.3: 0.347 %, 17/21, but 0.0328 / 1.4499 (edge-on triangles of
-        real surface go too: shoulder tops in the chest's column). Estimated posture: off 1.015 %,
-        5/21, max 3.48 %; fold_cos 0, factor 4: 0.788 %, 6/21, max 1.61 % (arms_forward 2.40 ->
-        0.35 %, hands_on_hips 3.48 -> 0.88 %, a whole flap across armpit or hip flipped against
-        the arm's chart); factor 6 or 8: 0.796 %; fold_cos -0.5: 0.997 % (those flaps have
-        cosines between -0.5 and 0).
+        inner triangles). The reason is geometric, not the length: where the surface folds back
+        over the chart (curled fingers over the palm, in the forearm's column chart at 10 mm), the
+        two layers' points interleave in 2D and Delaunay joins them with triangles flipped against
+        the chart, in the air; a short flipped triangle turns around the fold's rim, which is
+        surface, so only the long ones (longer than the hull peel's limit) are joins across the
+        fold. A hole in the data, covered by the paper, is not flipped and stays covered.
+        (chosen)
     carve_margin, carve_min_edge, carve_reach : float
         Free-space carving (paper: none; ``carve_margin = 0`` switches it off): every point was
         measured along a ray from its camera (``view_dir``), so a triangle that such a ray crosses
@@ -336,24 +260,12 @@ class SurfaceParams:
         spacings are tested, against the points within their circumradius plus ``carve_reach``
         spacings of their centroid. It removes the flaps across armpits, crotch, curled fingers and
         under the chin where the sensor looked through them, but not the cover of a hole that no
-        ray looked through (the paper's choice, ``max_edge_factor``). (chosen) Measured on the 21
-        shipped postures with the fold rule on (`paper` scans; mean bridging and postures under
-        0.5 % / mean spurious / mean area neither spurious nor bridging, m^2): oracle posture: off
-        0.366 %, 16/21 / 0.0340 / 1.4551; margin 1: 0.312 %, 20/21 / 0.0335 / 1.4548; 0.5:
-        0.272 %, 20/21 / 0.0329 / 1.4541; 0.25: 0.261 %, 20/21 / 0.0326 / 1.4533; at 0.5 reach 6
-        instead of 3 and min_edge 1.5 instead of 2 change nothing. Estimated posture: off 0.788 %,
-        6/21 / 0.0390 / 1.4087; margin 1: 0.614 %, 9/21; 0.5: 0.493 %, 10/21 / 0.0372 / 1.4061;
-        0.25: 0.474 %, 12/21 / 0.0369 / 1.4040 (more real surface goes, for little); at 0.5,
-        min_edge 3: 0.523 %, 4: 0.602 %; reach 0: 0.527 %, 1: 0.498 %, 3: 0.493 %: 1 is kept, as
-        it costs a third of 3 on a 2 mm scan (1.2 against 1.8 s, loaded machine).
+        ray looked through (the paper's choice, ``max_edge_factor``). (chosen; ``carve_reach`` 1
+        rather than 3 for speed on dense scans)
     carve_min_rays : int
         Free-space carving: a triangle is air when at least this many points' rays cross it
         (paper: none). 1 (chosen): most flaps are crossed by one ray only (within
-        ``carve_reach``); 2 gave oracle 0.339 % (18/21), estimated 0.651 % (9/21); 3: 0.355 %,
-        0.722 %. With 1 % outliers (``outlier_fraction=0.01``; standing, hands_on_hips, seated,
-        woman_standing, squat; oracle posture) carving with 1 ray still lowers bridging 1.43 ->
-        1.12 % and spurious 0.071 -> 0.067, for 0.2 % of the good area (1.3118 -> 1.3093 m^2);
-        with 2 rays 1.34 %, no area lost: raise it for clouds with many stray points.
+        ``carve_reach``); raise it for clouds with many stray points.
     facing_cos, facing_min_edge : float
         View consistency (paper: none; ``facing_cos = -1`` switches it off; ``proposed`` only):
         a point is measured only where the surface faces its camera, so a triangle of real
@@ -364,23 +276,7 @@ class SurfaceParams:
         an armpit) and is removed when its longest edge is also longer than ``facing_min_edge``
         spacings (shorter ones turn around a thin part's rim: fingers, silhouettes; a convex
         capsule's lowest value is about -0.14). One viewing direction for all points: no effect.
-        (chosen) Measured on the 21 shipped postures with the fold and carving rules (`paper`
-        scans, front and rear heads; mean bridging, postures under 0.5 %, max / mean spurious /
-        mean area neither spurious nor bridging, m^2 / boundary edges): estimated posture: off
-        0.497 %, 11/21, 1.00 % / 0.0389 / 1.4028 / 2.82 %; -0.4 with 2 spacings: 0.383 %, 16/21,
-        0.76 % / 0.0303 / 1.4012 / 3.19 %; -0.5 with 2.5: 0.417 %, 13/21, 0.84 % / 0.0328 / 1.4022;
-        -0.6 with 2.5: 0.427 %, 13/21 / 0.0340 / 1.4025; -0.5 with 2: 0.411 %, 13/21 / 1.4019.
-        Oracle posture: off 0.277 %, 20/21, 0.66 % / 0.0329 / 1.4542 / 3.15 %; -0.4 with 2:
-        0.209 %, 20/21, 0.63 % / 0.0266 / 1.4525 / 3.45 %. Applied inside each section before
-        the hull peel (so that the peel goes on through the opened holes) it gave 0.316 %, 18/21,
-        but took 1.7 % of the good area (1.3783 m^2): the peel then opens the paper's covered holes.
-        With the concavity rules below on (estimated posture): off 0.340 %, 19/21, 0.70 % / 0.0379
-        / 1.4022; -0.6 with 2.5: 0.291 %, 19/21 / 1.4019; -0.5 with 2: 0.278 %, 20/21, 0.53 % /
-        1.4013; -0.4 with 2: 0.255 %, 21/21, 0.45 % / 0.0295 / 1.4006. With 1 % outliers
-        (``outlier_fraction=0.01``; standing, hands_on_hips, seated, woman_standing, squat,
-        arms_close; oracle posture) a stray vertex has its camera but not the surface's position:
-        the rule alone lowers bridging 1.054 -> 1.009 % for 0.2 % of the good area (1.3342 ->
-        1.3314 m^2); the concavity rules alone 1.054 -> 0.780 % for 0.06 %; both 0.756 %, 1.3306.
+        (chosen)
     peel_same_side : float
         The boundary peel (and the far charts' ``far_max_edge``) measures a triangle whose vertices
         were seen along one axis (their unit viewing directions, turned to one side, at least this
@@ -423,28 +319,7 @@ class SurfaceParams:
         is removed when its longest edge is also longer than ``concave_min_edge`` spacings.
     concave_neighbours : int
         Points (with itself) whose least-spread direction is a point's normal for that rule.
-        (chosen) Measured on the 21 shipped postures after the view consistency (`paper` scans;
-        mean bridging, postures under 0.5 %, max / mean spurious / mean good area, m^2 /
-        boundary edges): estimated posture: off 0.383 %, 16/21, 0.76 % / 0.0303 / 1.4012 /
-        3.19 %; height 0.3, 8 neighbours: 0.283 %, 20/21, 0.63 % / 0.0297 / 1.4008 / 3.22 %;
-        0.4 with 12: 0.317 %, 20/21, 0.76 % / 1.4011; 0.3 with 12: 0.302 %, 0.67 %; 0.2 with 12:
-        0.290 %, 0.63 % / 1.4005; 0.2 with 8: 0.267 %, 0.63 % / 1.4003; 0.1 with 12: 0.274 %,
-        0.56 % / 1.3991 (more real surface goes); 0.6: 0.348 %, 19/21; 20 neighbours (0.4):
-        0.335 %, 18/21; min_edge 1.5 or 3 instead of 2: 0.317 or 0.321 % (at 0.4). Oracle
-        posture: 0.209 -> 0.186 %, 20/21, max 0.63 %, good 1.4525 -> 1.4523. With 1 mm range
-        noise (oracle; standing, woman_standing, arms_close, knee_raised, walking, seated):
-        0.454 -> 0.377 %, good 1.4085 -> 1.4083 m^2. Over the 21 estimated postures, the triangles
-        longer than 2 spacings standing in front of all their vertices' planes by more than 0.4
-        spacings were 211 cm^2 bridging and 18 cm^2 good surface; by 0.2 to 0.4: 80 against 114.
-        The mean (``concave_mean_height``; the min rule at 0.3 with 8 neighbours, then): off
-        0.283 %, 20/21, 0.63 % / 0.0297 / 1.4008 / 3.22 %; 0.7: 0.255 %, 21/21, 0.45 % / 0.0295 /
-        1.4006 / 3.23 %; oracle 0.186 -> 0.178 %, 20/21 (woman_standing 0.60 %), good 1.4523 ->
-        1.4520; 1 mm noise (6 postures) 0.377 -> 0.365 %, good 1.4083 -> 1.4077. The mean alone
-        (no min rule): 0.5: 0.217 %, 21/21, max 0.41 %, but good 1.3986; 0.6: 0.253 %, 20/21 /
-        1.3999; 0.7: 0.275 %, 20/21 / 1.4008; 1.0: 0.331 %, 19/21. ``concave_min_edge`` 2.5
-        instead of 2: 0.257 % instead of 0.255 %, max 0.46 %, 21/21, good 1.4006, and on the
-        1.4 mm scan of standing the triangles tested fall from 156k to 69k (of 1.05M: the
-        normals cost about 0.2 s there); 3: 0.267 %, 21/21, max 0.47 %.
+        (chosen; ``concave_min_edge`` 2.5 rather than 2 for speed on dense scans)
     tilt_cos, tilt_min_edge : float
         Tilted triangles (paper: none; ``tilt_cos = 0`` switches it off; ``proposed`` only): a
         triangle of the surface lies in the tangent planes at its vertices up to the surface's turn
@@ -689,7 +564,10 @@ def _check(ok, name, value, what):
 
 @dataclass(frozen=True)
 class FitParams:
-    """Parameters of posture estimation; paper values as defaults, paper section in each comment."""
+    """Parameters of posture estimation; paper values as defaults, paper section in each comment.
+
+    The measurements behind the chosen values are in docs/tuning.md.
+    """
 
     voxel_min: float = field(default=0.010,  # 2.2: lower limit of the voxel edge, m (value not given; chosen)
         metadata={"help": "lower limit of the voxel edge", "unit": "m", "range": (0.001, 0.5)})
@@ -715,8 +593,7 @@ class FitParams:
         metadata={"help": "the legs claim their voxels this far beyond their model radii", "unit": "m", "range": (0, 0.5)})
                                            # their model radii, m: a real thigh is wider than the standard column, and the
                                            # contour voxels just outside it drew a hanging forearm onto the thigh's front
-                                           # (arms_close k3 at 10 mm: wrist 11.1 -> 4.0 cm; 20 mm: arms_close k1-k2 fa_r
-                                           # 7.8 / 11.3 -> 4.0 / 3.2 cm; chosen, as `match_claim_margin`)
+                                           # (chosen, as `match_claim_margin`)
     match_claim_margin: float = field(default=0.02,  # 2.3(2): torso claimed this far beyond its surface, m (chosen)
         metadata={"help": "the torso claims voxels this far beyond its surface", "unit": "m", "range": (0, 0.5)})
     match_upright_prior: float = field(default=0.5,  # 2.3(1): score penalty x (1 - cos tilt) of the torso from +z (chosen)
@@ -731,16 +608,13 @@ class FitParams:
                                            # least this (a limb seen from one side only; chosen)
     match_shell_voxel: float = field(default=0.025,  # 2.3(2): the shell score only on volumes of voxels this fine, m: the 2 mm
         metadata={"help": "the shell score is used only on volumes of voxels this fine", "unit": "m", "range": (0, 1)})
-                                           # scans (15 mm voxels). Measured: at 0.035 (10 mm scans, 25-30 mm voxels)
-                                           # squat k=3 went 8 -> 17 cm; on 40 mm voxels (20 mm scans) a rescued arm
-                                           # let a misplaced child's fit through (chosen)
+                                           # scans (15 mm voxels; chosen)
     match_thigh_max_rise: float = field(default=0.2,  # 2.3(2): a thigh rising more than this (cosine) towards the torso's top
         metadata={"help": "a thigh rising more than this (cosine) toward the torso's top must flex more than it rises", "unit": "", "range": (-1, 1)})
                                            # must flex front or back more than it rises (anatomy; chosen)
     match_upright_start: float = field(default=5.0,  # 2.3(1): the best torso within this of +z (degrees) is always among
         metadata={"help": "the best torso within this of +z is always matched whole", "unit": "deg", "range": (0, 90)})
-                                           # those matched whole, and stays so when refined (chosen: 5 measured
-                                           # better than 12 on heavy_a_pose, standing at 10 and 20 mm)
+                                           # those matched whole, and stays so when refined (chosen)
     match_torso_directions: int = field(default=200,  # 2.3(1): torso axis candidates on a hemisphere (chosen)
         metadata={"help": "torso axis candidates on a hemisphere", "unit": "", "range": (10, 100000)})
     match_directions: int = field(default=300,  # 2.3(2): limb direction candidates on a sphere (chosen)
@@ -752,22 +626,18 @@ class FitParams:
     match_max_elbow_bend: float = field(default=140.0,  # 2.3(2): largest elbow bend searched, degrees (anatomy: about 145;
         metadata={"help": "largest elbow bend searched", "unit": "deg", "range": (0, 180)})
                                            # a forearm folded back down a raised arm was matched at 150; chosen)
-    match_rounds: int = field(default=2,  # 2.1: matches with the size re-estimated in between (chosen; 3
+    match_rounds: int = field(default=2,  # 2.1: matches with the size re-estimated in between (chosen)
         metadata={"help": "matches with the body's size re-estimated in between", "unit": "", "range": (1, 10)})
-                                           # measured worse on child_standing, t_pose and seated)
     match_resize_upright: int = field(default=1,  # 2.1: 1 = when the best match's torso is tilted (more than
         metadata={"help": "1 = after a resize, the best upright torso is matched again too", "unit": "", "range": (0, 1)})
                                            # `match_upright_start`) and the body is resized, the best upright torso
                                            # is matched again at the new size too; it may win only when its head finds the
-                                           # crown on its axis. Measured: heavy_a_pose k3 at 10 mm, tilted 22 degrees with 4
-                                           # arm sections unfitted (4.1 / 7.3 cm) -> upright, all fitted (3.0 / 7.7 cm)
-                                           # (chosen)
+                                           # crown on its axis (chosen)
     match_legs_roll_wide: int = field(default=1,  # 2.3(1): 1 = a torso roll taken from the legs (`_roll_from_legs`) competes only
         metadata={"help": "1 = a torso roll from the legs competes only when the waist is wider than deep", "unit": "", "range": (0, 1)})
                                            # when the waist, measured on the points, comes out wider than deep (anatomy, as
-                                           # `_check_plausible`): legs split front-back by a stride give the wrong roll.
-                                           # Measured: tall_walking k2 at 10 mm, refused -> pass 3.0 / 4.3 cm; nothing
-                                           # else changed at 10 or 20 mm (chosen)
+                                           # `_check_plausible`): legs split front-back by a stride give the wrong roll
+                                           # (chosen)
     match_resize_tolerance: float = field(default=0.06,  # 2.1: re-match only when the limbs measure off by more (chosen)
         metadata={"help": "re-match only when the limbs measure off by more than this ratio", "unit": "", "range": (0, 10)})
     match_min_anchor_shift: float = field(default=0.08,  # 2.3(1): slide the torso to hang from the crown when it is off
@@ -778,11 +648,8 @@ class FitParams:
         metadata={"help": "1 = seek the crown on the trunk's axis when the head finds none on its own", "unit": "", "range": (0, 1)})
                                            # on the trunk's axis (`recon.posture.match._crown_on_trunk`: the head sits on the
                                            # trunk; a torso matched too high leaves its head leaning onto nothing) and
-                                           # the torso slid down to it when that explains more points. Measured at
-                                           # 10 mm: seated k1_rot137 5.0 / 13.1 -> 2.5 / 6.5 cm, child_arms_raised
-                                           # k1_rot137 6.4 / 11.1 -> 2.0 / 3.7 cm; nothing else changed. At any
-                                           # stature (not only from `fit_anchor_min_stature`): 20 mm child_arms_raised
-                                           # k1_rot137 WRONG 15.7 / 19.8 -> pass 3.3 / 5.4 cm (chosen)
+                                           # the torso slid down to it when that explains more points, at any stature
+                                           # (not only from `fit_anchor_min_stature`; chosen)
     match_size_from_crown: int = field(default=0,  # 2.1: 1 = size from crown-to-sole lengths, 0 = from the legs (chosen)
         metadata={"help": "1 = size the body from crown-to-sole lengths, 0 = from the legs", "unit": "", "range": (0, 1)})
     match_min_first_stature: float = field(default=1.5,  # 2.1: stature of the first match at least this, m (chosen)
@@ -790,33 +657,26 @@ class FitParams:
     match_size_disagree: float = field(default=0.1,  # 2.1: the legs' length (from the matched hips) and crown to sole (which does
         metadata={"help": "legs and crown-to-sole differing by more than this ratio: size from crown to sole", "unit": "", "range": (0, 10)})
                                            # not depend on where the torso sits along its axis) differ by more than this
-                                           # ratio: the hips were misplaced, size from crown to sole (adult sizes; a
-                                           # walker 1.97 m tall, hips matched 11 cm high: legs 2.2 m, crown to sole
-                                           # 2.0 m; on the library's other adult-size matches they agree within
-                                           # 0.09; a child's disagree by 0.11, but children stay sized by the legs;
-                                           # chosen)
+                                           # ratio: the hips were misplaced, size from crown to sole (adult sizes;
+                                           # children stay sized by the legs; chosen)
     match_leg_trunk_min: float = field(default=0.8,  # 2.1: both leg chains (hip to the farthest point along the lower leg) measuring
         metadata={"help": "leg chains shorter than this times the trunk are legs cut from the scan (0 = off)", "unit": "", "range": (0, 10)})
                                            # less than this times the trunk (crown to the crotch seen in the points,
                                            # over `recon.posture.match.CROWN_CROTCH` statures) are not whole legs (cut from the
                                            # scan): the trunk sizes the body and the lower legs are listed
-                                           # (`recon.posture.match.size_ratios`). Whole legs measure 0.87 (a child, short legs)
-                                           # to 0.94 of their trunk on the library, legs cut below the knee 0.55-0.73;
-                                           # not applied when the scan shows feet (`recon.posture.fit.feet_forward`)
-                                           # (0 = off; chosen)
+                                           # (`recon.posture.match.size_ratios`); not applied when the scan shows feet
+                                           # (`recon.posture.fit.feet_forward`) (0 = off; chosen)
     match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
         metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points", "unit": "", "range": (0, 1)})
                                            # sole differs from them by more than `match_resize_tolerance`, the body is
                                            # matched at both sizes and the one explaining more points is kept: the
                                            # two measures disagree because the hips sit off along the torso's axis,
                                            # or because the body's proportions are not the standard's, and the
-                                           # points tell which (a tall walker, true 1.97 m: legs 2.18 m, explains
-                                           # 0.836; crown to sole 2.02 m, explains 0.86; chosen)
+                                           # points tell which (chosen)
     match_resized_anchor_shift: float = field(default=0.0,  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
         metadata={"help": "after sizing from the crown, hang the torso from the crown when off by more than this", "unit": "m", "range": (0, 2)})
                                            # misplaced along its axis), the next match slides the torso to hang from the
-                                           # crown when it is off by more than this, m (0: always; the walker's resized
-                                           # match sat 7 cm low, under `match_min_anchor_shift`; chosen)
+                                           # crown when it is off by more than this, m (0: always; chosen)
     match_alternatives: int = field(default=2,  # 2.3(1): other torso poses tried, best first, when the fit of the best
         metadata={"help": "other torso poses tried, best first, when the best one's fit fails its checks", "unit": "", "range": (0, 100)})
                                            # fails its checks (a sparse scan's coarse volume often ties an upright
@@ -860,11 +720,8 @@ class FitParams:
         metadata={"help": "an arm section covered less than this and fitted worse than fit_doubt_rms is unfitted", "unit": "", "range": (0, 1)})
     fit_doubt_rms: float = field(default=0.015,  #   fitted worse than this rms (m) is not trusted: unfitted,
         metadata={"help": "an arm section covered less than fit_doubt_cover and fitted worse than this rms is unfitted", "unit": "m", "range": (0, 1)})
-    fit_doubt_min_cover: float = field(default=0.35,  #   and so is one covered less than this (chosen; 0.5 while the
+    fit_doubt_min_cover: float = field(default=0.35,  #   and so is one covered less than this (chosen)
         metadata={"help": "an arm section covered less than this is unfitted", "unit": "", "range": (0, 1)})
-                                           #   head anchor moved the arms off their points, 4 cm on most
-                                           #   scans: arm covers on the library rose 0.69 -> 0.77 mean
-                                           #   when they stayed, the doubt cover by the same ratio)
     reach_candidates: int = field(default=60,  # 2.3(2): an arm listed unfitted is searched again as a chain from its
         metadata={"help": "arm search (reach): an unfitted arm is searched again from its shoulder; upper-arm directions kept", "unit": "", "range": (1, 10000)})
     reach_min_hand_points: int = field(default=10,  #   shoulder on the points no other section explains (`recon.posture.reach`):
@@ -875,58 +732,44 @@ class FitParams:
         metadata={"help": "arm search (reach): points inside the columns allowed per point on the surface", "unit": "", "range": (0, 100)})
     reach_min_upper_bins: int = field(default=4,  #   points inside the columns (and past the hand) allowed per surface (hand)
         metadata={"help": "arm search (reach): fifths of the upper arm that must hold points", "unit": "", "range": (0, 5)})
-                                           #   point; fifths of the upper arm holding points. Measured on arms_forward
-                                           #   (arms held forward, seen end-on; 10 mm, k = 1, 2, 3): the true arms hold
-                                           #   18-37 points at the hand end, 0-5 in the core, their upper arms 4-5 fifths
-                                           #   with points; with 3 fifths an arm was laid along the upper back (the chest
-                                           #   column leaves it 5-7 cm out), with 30 candidates that patch crowded out
-                                           #   the true direction (chosen)
+                                           #   point; fifths of the upper arm holding points (chosen)
     reach_back_clearance: float = field(default=0.1,  # 2.3(2): ... a hand behind the trunk nearer its columns than this (m): not
         metadata={"help": "arm search (reach): a hand behind the trunk nearer its columns than this is not taken", "unit": "m", "range": (0, 2)})
-                                           #   taken (the back's own surface, 5-7 cm outside the fitted chest at the
-                                           #   shoulder blades, took a cut forearm's place on standing; chosen)
+                                           #   taken (the back's own surface lies 5-7 cm outside the fitted chest at the
+                                           #   shoulder blades; chosen)
     reach_max_halo_fraction: float = field(default=0.25,  # 2.3(2): ... and the free points around the upper arm (1.6 to 3 radii from
         metadata={"help": "arm search (reach): free points around the upper arm allowed per point on its surface", "unit": "", "range": (0, 100)})
                                            #   its axis) allowed per point on its surface: a limb stands apart, a patch
-                                           #   of trunk the fitted torso misses spreads around a column laid on it.
-                                           #   Measured (arms_forward 10 mm): the found arms 0-9 around per 49-70 on;
-                                           #   arms laid on the back / a heavy body's side (20 mm) 12 per 26, 39 per 35
+                                           #   of trunk the fitted torso misses spreads around a column laid on it
                                            #   (chosen)
     reach_max_shared_fraction: float = field(default=0.5,  # 2.3(2): ... and not taken when more than this fraction of the points
         metadata={"help": "arm search (reach): not taken when more than this fraction of its points lie on another section", "unit": "", "range": (0, 1)})
                                            #   either found section is nearest to lie within fit_coverage_distance of
-                                           #   another section's surface (a limb explains points no other explains).
-                                           #   Measured (10 mm): found arms of arms_forward k1/k3 and cut scans at most
-                                           #   0.12; a "forearm" found on the other forearm and the chest 0.77 (chosen)
+                                           #   another section's surface (a limb explains points no other explains;
+                                           #   chosen)
     fit_leg_seen_cover: float = field(default=0.4,  # 2.3(2): a leg section in empty voxels (a thigh raised level, seen from
         metadata={"help": "a leg section in empty voxels is kept when its cells hold points at least this much", "unit": "", "range": (0, 1)})
     fit_leg_seen_rms: float = field(default=0.012,  #   the front and above: no inside voxels) is kept when its fitted surface's
         metadata={"help": "a leg section in empty voxels is kept when it also fits its points within this rms", "unit": "m", "range": (0, 1)})
                                            #   cells hold points at least this much and it fits them within this rms
-                                           #   (m): the points show the limb the volume missed. Measured: the raised
-                                           #   thighs of knee_raised 0.42-0.57 / 9-11 mm; a squat's thigh matched
-                                           #   into a gap 0.35-0.40 / 14-17 mm (chosen)
+                                           #   (m): the points show the limb the volume missed (chosen)
     fit_arm_clearance: float = field(default=0.7,  # 2.3(2): an arm section whose axis comes nearer the trunk's fitted columns
         metadata={"help": "an arm's axis nearer the trunk's columns than this many of its radii: unfitted", "unit": "radii", "range": (0, 100)})
                                            #   than this many model radii of it (a forearm at 0.25 to 1 of its
                                            #   length, an upper arm, which starts at the shoulder, at 0.75 and 1) is
                                            #   unfitted: an arm against the body keeps its axis a radius outside the
                                            #   skin, which the trunk's columns fit to 1-2 cm; one nearer lies on the
-                                           #   trunk's own surface. Measured (10 mm, the library k1/k3/turned 200):
-                                           #   real forearms 2.2 radii and more (arm_across, arms_close), upper arms
-                                           #   1.3 (heavy_standing); arm sections placed on the trunk of scans without
-                                           #   them 0.4 and less (chosen)
+                                           #   trunk's own surface (chosen)
     fit_max_unfitted: int = field(default=4,  # 2.3(2): more sections unfitted (two arms' worth): the posture was not
         metadata={"help": "more sections unfitted: the posture was not found", "unit": "", "range": (0, 11)})
-                                           # found (on the library, fits with 5 or more were wrong; chosen)
+                                           # found (chosen)
     fit_min_coverage: float = field(default=0.6,  # 2.3(2): fewer points explained: not a body (chosen)
         metadata={"help": "fewer of the points explained: not a body", "unit": "", "range": (0, 1)})
     fit_min_agreement: float = field(default=0.68,  # 2.3(2): the fitted model drawn from each camera: under this fraction of
         metadata={"help": "less of the trunk's or the limbs' surface the cameras see confirmed by the scan: posture not found (0 = off; needs view directions)", "unit": "", "range": (0, 1)})
                                            # the surface its trunk, or its limbs, show a camera, where that camera saw
                                            # a point, confirmed by a point at its depth: the posture was not found
-                                           # (`recon.posture.seen.confirmed_parts`; chosen on tune62; the library's
-                                           # lowest is 0.73)
+                                           # (`recon.posture.seen.confirmed_parts`; chosen)
     fit_agreement_tolerance: float = field(default=0.03,  # 2.3(2): a shown model surface sample is confirmed by a seen point
         metadata={"help": "a model surface sample a camera would see is confirmed by a seen point this near in depth", "unit": "m", "range": (0.001, 1)})
                                            # this near in depth (in its pixel or the eight around; chosen)
@@ -934,9 +777,7 @@ class FitParams:
         metadata={"help": "the head's coarse axis leans at most this far sideways from the chest's", "unit": "deg", "range": (0, 180)})
                                            # torso's wide axis) from the chest's, degrees: the neck bends about 45 degrees
                                            # sideways (its range of lateral flexion), 10 more for the chest's own error;
-                                           # front and back it keeps the 70 degree cone. Measured: a child's raised arm
-                                           # beside the head took the head at 69 degrees (child_arms_raised k2, k3 at 10 mm:
-                                           # 7.8 / 8.2 cm median -> 2.7 / 2.8); 45 let a_pose k1 pick a wrong size (chosen)
+                                           # front and back it keeps the 70 degree cone (chosen)
     match_head_max_lean: float = field(default=60.0,  # 2.3(1): a torso whose head leans further than this forward or back
         metadata={"help": "a torso whose head leans further forward or back from its chest slides down to the crown on the trunk's axis", "unit": "deg", "range": (0, 180)})
                                            # from its chest's axis, degrees, slides down to the crown found on the
@@ -947,16 +788,12 @@ class FitParams:
         metadata={"help": "anchor on the crown only for bodies at least this tall", "unit": "m", "range": (0, 3)})
     fit_anchor_max_shift: float = field(default=0.04,  # 2.3(2): the neck and head follow the crown this much further than the
         metadata={"help": "the neck and head follow the crown this much further than the torso", "unit": "m", "range": (0, 1)})
-                                           # torso (fit_max_shift), the chest stretching, m. Measured on the library
-                                           # (paper, k = 1, 3): neck error 2.9 -> 2.3 cm mean, head 3.2 -> 2.5, the
-                                           # rest unchanged; 0.08 for the whole torso moved the knees (chosen)
+                                           # torso (fit_max_shift), the chest stretching, m (chosen)
     fit_arm_size_tolerance: float = field(default=0.1,  # 2.3(2): a nearly straight arm whose shoulder-to-wrist (wrist from the seen
         metadata={"help": "a straight arm off the model's length by more than this ratio gets its elbow at the model's proportion", "unit": "", "range": (0, 10)})
                                            # fingertips) differs from the model's arm by more than this ratio has its elbow
                                            # placed at the model's proportion of the measured arm, not the model's upper-arm
-                                           # length from the shoulder: the body's size was misjudged. Measured on the library
-                                           # (k = 1, 3, 10 mm): elbow error mean 2.5 -> 2.3 cm, median 1.9 -> 1.9, a child
-                                           # matched at 1.20 m 6.9 -> under 4.8; 0 (always) gave median 2.2 (chosen)
+                                           # length from the shoulder: the body's size was misjudged (chosen)
     fit_facing: int = field(default=4,  # 2.1: fit the cloud turned about the vertical to a facing read from its own
         metadata={"help": "fit the cloud turned to its own facing, retried in 360/this degree steps (0 = as it lies)", "unit": "", "range": (0, 36)})
                                            # shape (`recon.posture.fit.facing_frame`), so that a scan turned about the

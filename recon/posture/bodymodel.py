@@ -21,7 +21,8 @@ other bodies (`standard_body`). Sources:
   model's columns take the mean radius along the section, so limb radii are below the maxima).
 
 The model is described in its own frame: x to the subject's left, y to the back, z up (the subject
-faces -y), with the pelvis joint at the origin.
+faces -y), with the pelvis joint at the origin. The measurements behind the chosen values are in
+docs/tuning.md.
 """
 
 from __future__ import annotations
@@ -108,9 +109,7 @@ JOINT_OFFSET = dict(
 #: made across the fitted waist column, which runs up the torso's middle, while the rig's chest
 #: joint lies 0.045 H behind it (`SPINE_BACK`): measured across the column, with the rig's joints
 #: projected on it, the best plane lies at 0.68 (standing 0.682, a_pose 0.676). (chosen) 0.65 on
-#: the 13 average-male bodies, estimated posture, the clustering's section accuracy (truth among
-#: the labels, mean) 0.9499 / 0.9510 / 0.9525 / 0.9524 / 0.9524 / 0.9513 for 0.625 / 0.64 / 0.65
-#: / 0.66 / 0.67 / 0.68; the other 8 bodies 0.9507 -> 0.9518 at 0.65.
+#: the 13 average-male bodies.
 TORSO_SPLIT = 0.65
 
 #: Where the chest section meets the waist section, as a fraction of the way from the crotch seen
@@ -118,11 +117,7 @@ TORSO_SPLIT = 0.65
 #: column (`recon.posture.joints.split_torso`). The fitted pelvis joint, the column's lower end, rides with
 #: the waist and is the torso's worst-placed landmark along its axis (-3.2 to +4.2 cm against the
 #: rig's over the library, estimated posture), while the crotch is seen on the points (within -1.1
-#: to +1.9 cm of the rig's, `CROTCH_STRIP`): the cut measured from it moved its error against the
-#: best cut for the labels from mean -0.95, sd 1.83, largest 4.5 cm to +0.11, 1.25, 2.8 cm over
-#: the 21 shipped bodies. (chosen) 0.73 on the 13 average-male bodies (the clustering's section
-#: accuracy, truth among the labels, mean 0.9531 / 0.9537 / 0.9533 / 0.9530 for 0.72 / 0.73 / 0.74
-#: / 0.75; least squares on the best cuts: 0.72); the other 8 bodies: 0.9546 (0.9507 before).
+#: to +1.9 cm of the rig's, `CROTCH_STRIP`). (chosen) 0.73 on the 13 average-male bodies.
 TORSO_SPLIT_CROTCH = 0.73
 
 #: The cut of the torso stays within this fraction of the fitted waist column (from its pelvis end):
@@ -140,9 +135,7 @@ KNEE_SPLIT = 0.022
 #: the groin waist down to the crotch, and thigh only from a slanted boundary above it (its topmost
 #: thigh vertex, on the hip's side, 0.16-0.18 thigh lengths above the crotch on the adult rig's
 #: upright bodies, 0.22-0.28 on heavy, child and woman bodies). (chosen) 0.12, a cross-section
-#: below that top: estimated-posture section accuracy over the 21 shipped bodies (truth among the
-#: labels, mean) 0.944 -> 0.9496 / 0.9504 / 0.9497 for 0.08 / 0.12 / 0.16 (0.20 on nine bodies:
-#: 0.946 against 0.949 for 0.12).
+#: below that top.
 CROTCH_SPLIT = 0.12
 
 #: How far the rig's pelvis joint lies above the crotch seen in the points (`recon.posture.joints.
@@ -181,9 +174,7 @@ JOINT_CAP = 0.5
 #: than across (biceps and triceps; the deltoid over the joint): the oracle's sections (principal
 #: radii of the labels' cross-sections) measure 1.16-1.25 times deeper than wide on all 21 shipped
 #: bodies. The product is 1 (the fitted area is kept). (chosen) ratio 1.30 on the 13 average-male
-#: bodies, estimated posture, section accuracy (truth among the labels, mean; round arm 0.9587)
-#: 0.9602 / 0.9605 / 0.9607 for ratios 1.2 / 1.3 / 1.4, bridging mean over the 21 bodies 0.476 /
-#: 0.458 / 0.478 % (round 0.487 %); the other 8 bodies 0.9593 -> 0.9606 at 1.3.
+#: bodies.
 UPPER_ARM_SHAPE = (1.14, 0.877)
 
 #: The reported upper arm's start cap at the shoulder, in minor radii: ``SHOULDER_CAP[0] +
@@ -191,20 +182,14 @@ UPPER_ARM_SHAPE = (1.14, 0.877)
 #: (`recon.posture.joints.joint_caps`). The body file labels the deltoid upper arm; it covers the joint
 #: from above, so the labels reach past the joint along a hanging arm's axis (the oracle's upper
 #: arms start 0.038-0.040 statures before the joint on the standing bodies) more than along one
-#: held sideways (t_pose 0.026) or raised (0.016-0.018). (chosen) with the arm shape 1.3: 13
-#: average-male bodies, estimated posture, section accuracy (truth among the labels, mean) 0.9605
-#: (flat joint cap) -> 0.9609, the other 8 0.9606 -> 0.9613, bridging mean 0.458 -> 0.454 %; a cap
-#: of 1.0 or 1.5 radii on any arm (round arms) lost 0.2 % on the raised arms (arms_raised, t_pose).
+#: held sideways (t_pose 0.026) or raised (0.016-0.018). (chosen) with the arm shape 1.3.
 SHOULDER_CAP = (0.6, 0.6)
 
 #: The reported lower leg's cross-section radii, front to back and across, as multiples of the
 #: fitted (round) radius (`recon.posture.joints.shape_limbs`): the calf lies behind the shin bone; the
 #: oracle's sections measure 1.08-1.23 times deeper than wide (1.16 on the 1.76 m male rig) on the
 #: 21 shipped bodies (squat, whose foot folds under the thigh, aside). The product is 1.
-#: (chosen) ratio 1.30, as the upper arm's: 13 average-male bodies, estimated posture, section
-#: accuracy (truth among the labels, mean; round lower legs 0.9610) 0.9633 / 0.9639 / 0.9642 for
-#: ratios 1.16 / 1.30 / 1.45 (not beyond: the gain flattens past the measured shapes), the other 8
-#: bodies 0.9612 -> 0.9617 / 0.9619 / 0.9620; bridging mean 0.448 -> 0.441 / 0.438 / 0.429 %.
+#: (chosen) ratio 1.30, as the upper arm's.
 LOWER_LEG_SHAPE = (1.14, 0.877)
 
 #: Where the sections meet (`recon.posture.joints.place_seams`): the hips' seams lie behind and

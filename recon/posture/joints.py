@@ -9,6 +9,7 @@ the body file's section labels change, and `joint_caps` (with `shape_limbs`) giv
 and lower legs the labels' cross-sections, deeper front to back than the fit's round columns, and
 the upper arms a start cap over the shoulder; `centre_neck` (before the joints are placed) puts the
 chest's top between the sides of the neck seen in the points, the head and the shoulders following.
+The measurements behind the chosen values and placements are in docs/tuning.md.
 """
 
 from __future__ import annotations
@@ -483,13 +484,6 @@ def bent_knee(thigh: SectionShape, shin: SectionShape, ankle: np.ndarray | None,
     torso's axis to hang from the crown (`recon.posture.adjust.anchor_on_head_top`) moves a level thigh
     along itself only and the lower leg with the torso, so the lower leg's start leaves the thigh's
     axis (seated: 3-6 cm off the knee).
-
-    Measured on the fits of squat, seated and knee_raised (k = 1, 2, 3: 14 bent knees), against
-    `knee_between`: knee error mean 3.5 -> 2.5 cm, largest 7.1 -> 4.3 cm (squat k2), none worse
-    by more than 0.2 cm; the reported thigh's angle to its bone mean 10.3 -> 8.2 degrees, largest
-    23.0 -> 17.5. Estimated-posture section accuracy (truth among the labels): squat 0.933 -> 0.944,
-    seated 0.956 -> 0.964, knee_raised 0.9660 -> 0.9651 (its hip: the thigh's direction turned 1.7
-    degrees), the other 18 bodies unchanged.
     """
     d1, d2 = thigh.axis, shin.axis
     w = thigh.start - shin.start
@@ -543,8 +537,7 @@ def knee_between(hip: np.ndarray, ankle: np.ndarray, d_thigh: np.ndarray, d_shin
     ankle (a foot height above the detected sole) are the leg's best-placed joints; the knee is not
     seen on a straight leg, and on a slightly bent one the meeting point of the two axes moves far
     along them for a small error in either direction (a walker's rear leg, bent 25 degrees: 10 cm),
-    while the bend angle alone moves the knee little. Measured on the fits of the 21 shipped bodies
-    (k = 1, turned 137 degrees, k = 3): knee error mean 3.7 -> 2.3 cm, largest 12.7 -> 8.1 cm.
+    while the bend angle alone moves the knee little.
     """
     v = ankle - hip
     D = float(np.linalg.norm(v))
@@ -597,10 +590,6 @@ def split_torso(points, secs: dict, split: float = TORSO_SPLIT, from_crotch: flo
     tall_walking). The chest's radii become the length-weighted mean of the two columns' radii over
     its new extent (the model's radii are means along a section; the lower ribs, fitted by the waist
     column, are narrower than the shoulders).
-
-    Estimated posture, 21 shipped bodies, error of the cut against the plane across the column that
-    best separates the true labels: mean -0.95, sd 1.83, largest 4.5 cm (0.625 of the column) ->
-    +0.11, 1.25, 2.8 cm; section accuracy (truth among the labels) mean 0.950 -> 0.954.
     """
     if "waist" not in secs or "chest" not in secs:
         return secs
@@ -665,14 +654,8 @@ def centre_neck(points, secs: dict, slab: tuple = NECK_SLAB, reach: float = NECK
     Without a head, with fewer than 10 points in the slab, or with the slab wider than the head
     (not the neck alone: arms raised beside it, shoulders), ``secs`` is returned unchanged.
 
-    Estimated posture, 21 shipped bodies (`paper` scans): the neck's left-right error to the true
-    neck joint 0.8 cm mean, 6.2 cm largest (leaning) -> 0.1, 0.3 cm; section accuracy (truth
-    among the labels, ``python -m bodyscan.benchmarks.recon_table --estimated``) leaning 0.944 -> 0.964,
-    standing 0.963 -> 0.968, mean 0.960 -> 0.962, none more than 0.001 lower. Made before the
-    joints are placed (`recon.posture`), so that the neck, shoulder and elbow joints follow: then
-    leaning 0.967, and `benchmarks.fit_table` (84 runs, 10 mm) mean median joint error 2.39 ->
-    2.35 cm, mean largest 4.84 -> 4.69 cm (leaning k1 3.2 / 6.8 -> 2.7 / 4.2 cm), no outcome changed.
-    `recon.posture.adjust._neck_shift` does the same during the fine adjustment, within 25 degrees of the
+    Made before the joints are placed (`recon.posture`), so that the neck, shoulder and elbow
+    joints follow. `recon.posture.adjust._neck_shift` does the same during the fine adjustment, within 25 degrees of the
     waist's axis; this one follows the head's axis and carries the shoulders.
 
     Parameters
@@ -829,11 +812,6 @@ def split_hips(points, secs: dict, above: float = CROTCH_SPLIT) -> dict:
     child_arms_raised) started the thighs as much above the labels' boundary, and the thighs took
     the lower waist. The joints are not moved; a thigh that already starts lower is left alone, and
     so are both with the hips flexed (no crotch sought: `find_crotch`).
-
-    Estimated-posture section accuracy (truth among the labels), 21 shipped bodies: mean 0.944 ->
-    0.950, >= 0.95 on 6 -> 10, min 0.907 -> 0.923 (a_pose 0.923 -> 0.950, child_arms_raised 0.907
-    -> 0.942, woman_standing 0.944 -> 0.961); bridging mean 0.48 -> 0.49 % (woman_standing 0.86 ->
-    1.00 %: her thighs touch below the crotch, and the two thigh surfaces now meet there).
     """
     crotch = find_crotch(points, secs)
     if crotch is None:
@@ -851,10 +829,6 @@ def split_knees(secs: dict, seams: dict, body: StandardBody, drop: float = KNEE_
     """The reported thigh ends at the knee's seam (``seams``: `place_seams`; placed by `knee_between`
     when the ankle was found from the sole, not where the fitted axes meet), and the lower leg starts ``drop`` statures below
     it along the shank, where the body file's labels change (`recon.posture.bodymodel.KNEE_SPLIT`).
-
-    Estimated-posture section accuracy, 21 bodies: 0.892 -> 0.898 for the drop (0.894 when the
-    thigh is also extended to meet it), then 0.905 -> 0.911 (min 0.810 -> 0.839) for meeting at
-    the knee joint; bridging 1.22 -> 1.28 % of the area.
     """
     out = dict(secs)
     for thigh, shin, _, knee, _ in LIMBS:
@@ -879,7 +853,7 @@ def joint_caps(secs: dict, height: float = JOINT_CAP, shoulder: tuple = SHOULDER
     """The reported sections with flat caps where they meet at a joint (``height`` minor radii,
     `recon.posture.bodymodel.JOINT_CAP`), as the ground truth's sections have: the fit's hemispheres there
     reach into the neighbour (a thigh's, 9 cm into the waist, took its points). Free ends keep
-    their caps. Estimated-posture section accuracy, 21 bodies: 0.873 -> 0.890.
+    their caps.
 
     The upper arms and lower legs first get their cross-sections (`shape_limbs`, ``limb_shapes``);
     the upper arms' start cap at the shoulder is ``shoulder[0] + shoulder[1] * cos`` minor radii
