@@ -234,15 +234,38 @@ def _read_ply_trimesh(path: Path):
 
 # -- text and PCD -------------------------------------------------------------------------------
 def _read_text(path: Path) -> np.ndarray:
-    text = path.read_text(errors="replace")
-    rows = [ln for ln in text.splitlines() if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
-    if not rows:
+    """Rows of x y z (more columns ignored; comma or white-space separated; ``#`` and ``//``
+    comment lines skipped). A first row that is not a row of numbers (a column header) or is one
+    number alone (the point count of a .pts file) is skipped."""
+    lines = path.read_text(errors="replace").splitlines()
+    number = [i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
+    if not number:
         return np.zeros((0, 3))
-    delim = "," if "," in rows[0] else None
+    delim = "," if "," in lines[number[0]] else None
+    first = lines[number[0]].split(delim)
+    try:
+        np.asarray(first, dtype=np.float64)
+        header = len(first) == 1
+    except ValueError:
+        header = True
+    number = number[1:] if header else number
+    if not number:
+        return np.zeros((0, 3))
+    rows = [lines[i] for i in number]
     try:
         data = np.loadtxt(rows, delimiter=delim, ndmin=2, dtype=np.float64)
-    except ValueError:  # a one-line count header (.pts) or uneven rows
-        data = np.loadtxt(rows[1:], delimiter=delim, ndmin=2, dtype=np.float64)
+    except ValueError:   # name the file's first bad line (this loop runs on failure only)
+        width = len(rows[0].split(delim))
+        for i, row in zip(number, rows):
+            cells = row.split(delim)
+            try:
+                np.asarray(cells, dtype=np.float64)
+            except ValueError:
+                raise ReconError(f"{path}: line {i + 1} is not a row of numbers: {row.strip()[:60]!r}") from None
+            if len(cells) != width:
+                raise ReconError(f"{path}: line {i + 1} has {len(cells)} columns, the rows before it "
+                                 f"{width}") from None
+        raise
     if data.shape[1] < 3:
         raise ReconError(f"{path}: text cloud rows need at least 3 columns (x y z), found {data.shape[1]}")
     return data[:, :3]

@@ -66,6 +66,10 @@ def test_text_and_pcd_and_mesh_ply(tmp_path):
     np.testing.assert_allclose(read_cloud(tmp_path / "a.xyz").points, pts, atol=1e-9)
     np.savetxt(tmp_path / "b.txt", np.column_stack([pts, pts]), header="x y z nx ny nz")
     np.testing.assert_allclose(read_cloud(tmp_path / "b.txt").points, pts, atol=1e-9)
+    np.savetxt(tmp_path / "h.csv", pts, delimiter=",", header="x,y,z", comments="")   # a bare header row
+    np.testing.assert_allclose(read_cloud(tmp_path / "h.csv").points, pts, atol=1e-9)
+    np.savetxt(tmp_path / "e.pts", pts, header=str(len(pts)), comments="")            # a .pts count row
+    np.testing.assert_allclose(read_cloud(tmp_path / "e.pts").points, pts, atol=1e-9)
     with open(tmp_path / "c.pcd", "w") as f:
         f.write("VERSION .7\nFIELDS x y z\nSIZE 4 4 4\nTYPE F F F\nCOUNT 1 1 1\n"
                 f"WIDTH {len(pts)}\nHEIGHT 1\nPOINTS {len(pts)}\nDATA ascii\n")
@@ -86,7 +90,9 @@ def test_nan_rows_are_dropped_with_a_warning(tmp_path):
 
 
 @pytest.mark.parametrize("content, message", [
-    (None, "only 50 points"), ("mm", "millimetres"), ("junk", "not a readable"), ("empty", "no points")])
+    (None, "only 50 points"), ("mm", "millimetres"), ("junk", "line 2 is not a row of numbers"),
+    ("empty", "no points"), ("header", "no points"), ("word", "line 5 is not a row of numbers: '0 1 abc'"),
+    ("short", "line 4 has 2 columns, the rows before it 3")])
 def test_bad_clouds_give_one_line_errors(tmp_path, content, message):
     path = tmp_path / "bad.xyz"
     if content is None:
@@ -95,6 +101,10 @@ def test_bad_clouds_give_one_line_errors(tmp_path, content, message):
         np.savetxt(path, _cylinder(1000) * 1000)
     elif content == "junk":
         path.write_text("hello world\nthis is not a cloud\n")
+    elif content == "header":   # a column header and no rows
+        path.write_text("x y z\n")
+    elif content in ("word", "short"):   # the file's own line is named, comments and header counted
+        path.write_text("# a scan\nx y z\n0 0 0\n" + ("1 0 0\n0 1 abc\n" if content == "word" else "0 1\n"))
     else:
         path.write_text("# nothing\n")
     with pytest.raises(ReconError, match=message) as err:
