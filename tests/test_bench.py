@@ -15,6 +15,7 @@ from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
 from bodyscan.poses.body import load_body, save_body
 from bodyscan.poses.library import list_bodies
+from test_peers import needs_installed
 
 METRICS = MetricParams(n_samples=20_000)
 
@@ -140,10 +141,7 @@ def test_evaluate_takes_flat_params_and_scores_like_score(standing_scan):
 
 
 def test_peer_through_evaluate(standing_scan):
-    from bodyscan.benchmarks.peers import available_peers
-
-    if "bpa" not in available_peers():
-        pytest.skip("open3d is not installed")
+    needs_installed("bpa")
     body, sc = standing_scan
     row = evaluate(body, sc, "bpa", metric_params=METRICS, keep_mesh=False)
     assert "_mesh" not in row and row["peer.bpa_radii"] == "1.5,3.0,6.0"
@@ -201,10 +199,7 @@ def test_bench_rejects_bad_options():
 
 def test_reconstruct_command_runs_peers(standing_scan, tmp_path):
     """`bodyscan reconstruct --method bpa` writes a peer's mesh, which `bodyscan score` scores."""
-    from bodyscan.benchmarks.peers import available_peers
-
-    if "bpa" not in available_peers():
-        pytest.skip("open3d is not installed")
+    needs_installed("bpa")
     from bodyscan import simulator
 
     body, sc = standing_scan
