@@ -15,6 +15,7 @@ from bodyscan.benchmarks.cli import main
 from bodyscan.benchmarks.metrics import METRIC_NAMES, MetricParams
 from bodyscan.poses.body import load_body, save_body
 from bodyscan.poses.library import list_bodies
+from test_peers import needs_installed
 
 METRICS = MetricParams(n_samples=20_000)
 
@@ -32,8 +33,7 @@ def _rotated(body, degrees, name):
 def two_postures(tmp_path_factory):
     """Two shipped postures, or standing and a turned copy while the library holds one."""
     names = list_bodies()
-    if "standing" not in names:
-        pytest.skip("the pose library has no standing body")
+    assert "standing" in names, "the shipped library has no 'standing' body"
     if len(names) >= 2:
         return ["standing", next(n for n in names if n != "standing")]
     path = tmp_path_factory.mktemp("bodies") / "standing_turned.npz"
@@ -79,17 +79,33 @@ def test_bench_table_has_every_metric_and_parameter(bench_run, two_postures):
 
 def test_bench_times_show_the_shared_fit_once(bench_run):
     """The posture fit serves proposed and simple: reported once per scan, not in either
-    method's own time, which is the sum of its own stages."""
+    method's own time. (How long the stages take, and whether they add up, is the benchmark's to
+    measure, `benchmarks.perf_recon`; nothing here depends on the machine's speed or load.)"""
     t = bench_run.table
     for _, g in t.groupby("body"):
         assert g["time_fit_s"].nunique() == 1 and g["time_fit_s"].iloc[0] > 0
-    stages = ("prepare", "coords", "cluster", "denoise", "surface", "complete")
-    own = t[[f"time_{s}_s" for s in stages if f"time_{s}_s" in t]].sum(axis=1)
-    assert ((t["time_total_s"] - own).abs() <= 0.05 + 0.1 * own).all()
     line = next(l for l in bench_run.summary.splitlines() if l.startswith("per scan"))
     mean_fit = t.groupby("body")["time_fit_s"].first().mean()
     assert f"posture fit {mean_fit:.2f} s (shared by proposed, proposed-closed, simple" in line
     assert "recon s" in bench_run.summary and "score s" in bench_run.summary
+
+
+def test_a_shared_fits_seconds_are_reported_apart_from_the_methods_own():
+    """`evaluate` with a fit made elsewhere: its seconds (a sentinel of 1000 s, more than anything
+    here takes) are the row's ``time_fit_s`` and are not in the method's ``time_total_s``; the
+    method fits nothing itself (2 cm scan: a second or two)."""
+    from bodyscan import simulator
+    from bodyscan.recon import ReconParams
+    from bodyscan.recon.pipeline import estimate_fit
+
+    body = load_body("standing")
+    sc = simulator.scan(body, simulator.preset("paper", k=1, resolution=0.02), seed=0)
+    fit = estimate_fit(sc.points, ReconParams(), sc.view_dir)
+    for method in ("simple", "proposed"):
+        row = evaluate(body, sc, method, metric_params=MetricParams(n_samples=2000), fit=fit,
+                       fit_seconds=1000.0, keep_mesh=False)
+        assert row["time_fit_s"] == 1000.0 and row["time_total_s"] < 1000.0, method
+        assert {f"time_fit_{k}_s" for k in fit.times} <= set(row)     # the shared fit's stages
 
 
 def test_bench_pictures(bench_run):
@@ -140,10 +156,7 @@ def test_evaluate_takes_flat_params_and_scores_like_score(standing_scan):
 
 
 def test_peer_through_evaluate(standing_scan):
-    from bodyscan.benchmarks.peers import available_peers
-
-    if "bpa" not in available_peers():
-        pytest.skip("open3d is not installed")
+    needs_installed("bpa")
     body, sc = standing_scan
     row = evaluate(body, sc, "bpa", metric_params=METRICS, keep_mesh=False)
     assert "_mesh" not in row and row["peer.bpa_radii"] == "1.5,3.0,6.0"
@@ -201,10 +214,7 @@ def test_bench_rejects_bad_options():
 
 def test_reconstruct_command_runs_peers(standing_scan, tmp_path):
     """`bodyscan reconstruct --method bpa` writes a peer's mesh, which `bodyscan score` scores."""
-    from bodyscan.benchmarks.peers import available_peers
-
-    if "bpa" not in available_peers():
-        pytest.skip("open3d is not installed")
+    needs_installed("bpa")
     from bodyscan import simulator
 
     body, sc = standing_scan

@@ -131,14 +131,14 @@ def test_recon_never_names_ground_truth_fields():
 
 
 def test_reads_a_simulator_scan(tmp_path):
-    simulator = pytest.importorskip("bodyscan.simulator")
-    poses = pytest.importorskip("bodyscan.poses")
-    if "standing" not in poses.list_bodies():
-        pytest.skip("no standing body shipped")
+    from bodyscan import poses, simulator
+
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         scan = simulator.scan(poses.load_body("standing"), simulator.preset("paper"))
     path = simulator.write_cloud(scan, tmp_path / "s.ply")
     cloud = read_cloud(path)
     np.testing.assert_allclose(cloud.points, scan.points, atol=1e-9)
-    assert cloud.view_dir is not None and cloud.view_dir.shape == scan.points.shape
+    # each point's direction toward its camera and its head, as the scan recorded them
+    np.testing.assert_allclose(cloud.view_dir, scan.view_dir, atol=1e-7)
+    assert np.array_equal(cloud.head, scan.head) and set(np.unique(cloud.head)) == {0, 1}

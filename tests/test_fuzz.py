@@ -314,10 +314,16 @@ def test_out_paths_are_checked_before_the_work(case, files, capsys):
 
 
 def test_reconstruct_creates_a_missing_output_folder_like_scan_and_fit(files, capsys):
-    from bodyscan._io import check_out as co
-    for option in ("scan", "fit", "reconstruct"):     # one rule: the folder is made
-        target = files / f"new_{option}" / "deeper" / "o.x"
-        assert co(target) == target and target.parent.is_dir()
+    # one rule for the three commands: an --out two folders deep into nothing is made, and the
+    # command's output lands there (the 2 cm cloud: a second each)
+    argv = {"scan": ["scan", "standing", "--resolution", "0.05", "-q"], "fit": ["fit", files / "c.ply"],
+            "reconstruct": ["reconstruct", files / "c.ply"]}
+    for command, name in (("scan", "o.ply"), ("fit", "o.json"), ("reconstruct", "o.ply")):
+        target = files / f"new_{command}" / "deeper" / name
+        assert not target.parent.parent.exists()
+        code, _, err = run(argv[command] + ["--out", target], capsys)
+        assert code == 0, (command, err)
+        assert target.is_file() and target.stat().st_size > 0, command
 
 
 @pytest.mark.parametrize("name", ["missing.ply", "empty.ply", "trunc.ply", "garbage.ply", "mm.xyz"])

@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 
@@ -94,8 +95,10 @@ def test_bench_runs_your_methods_beside_proposed(tmp_path):
     for column in ("spurious_area_fraction", "bridging_area_fraction", "fscore_seen@5mm"):
         assert t.loc["tiny", column] == pytest.approx(t.loc["tool", column], abs=1e-9)
         assert np.isfinite(t.loc["proposed", column])
-    # the proposed method keeps the recon parameters; max_edge was only the tiny methods'
-    assert t.loc["proposed", "recon.t_d"] == 0.3 or np.isfinite(t.loc["proposed", "recon.t_d"])
+    # the proposed method keeps its own recon parameters (T_d: the paper's 30 %); max_edge was only
+    # the tiny methods', which have no T_d
+    assert t.loc["proposed", "recon.t_d"] == 0.3 and pd.isna(t.loc["proposed", "recon.max_edge"])
+    assert pd.isna(t.loc["tiny", "recon.t_d"]) and pd.isna(t.loc["tool", "recon.t_d"])
     lines = result.summary.splitlines()
     assert any(line.startswith("tiny") for line in lines) and any(line.startswith("tool") for line in lines)
     report = (result.out / "report.md").read_text()

@@ -281,8 +281,7 @@ def standing():
     from bodyscan.poses.body import load_body
     from bodyscan.poses.library import list_bodies
 
-    if "standing" not in list_bodies():
-        pytest.skip("the pose library has no standing body")
+    assert "standing" in list_bodies(), "the shipped library has no 'standing' body"
     body = load_body("standing")
     return body, GroundTruth.from_body(body, PARAMS)
 

@@ -21,8 +21,7 @@ def _cut_scan(name, cut, turn=0.0):
     from bodyscan import poses
     from bodyscan import simulator
 
-    if name not in poses.list_bodies():
-        pytest.skip(f"library body {name} not shipped")
+    assert name in poses.list_bodies(), f"library body {name} not shipped"
     body = poses.load_body(name)
     if turn:
         R = rot_z(turn)

@@ -247,11 +247,12 @@ def test_doubted_forearm_is_found_again_on_the_points():
 
 # -- shipped postures ------------------------------------------------------------------------------
 def _library():
-    poses = pytest.importorskip("bodyscan.poses")
-    pytest.importorskip("bodyscan.simulator")
+    """The shipped bodies: tracked in the repository, so one missing (or a stage that does not
+    import) is a failure, not a skip."""
+    from bodyscan import poses
+
     names = poses.list_bodies()
-    if not names:
-        pytest.skip("no shipped bodies")
+    assert names, "no shipped bodies"
     return names
 
 
@@ -308,8 +309,7 @@ def test_standing_fit_meets_the_issue_targets(standing_fits, case):
 def test_other_postures_and_sizes(name):
     """A seated adult and a child: regression level reached today (median 3-6 cm, worst 5-9 cm)."""
     names = _library()
-    if name not in names:
-        pytest.skip(f"{name} not shipped")
+    assert name in names, f"{name} not shipped"
     from bodyscan import poses
     from bodyscan import simulator
 
@@ -328,8 +328,7 @@ def test_seated_scanned_at_2mm_is_fitted():
     """The 2 mm scanner sees a seated person's thighs from above only (no inside voxels in them): the
     legs are placed on their seen surface, not listed, and the cloud is not refused."""
     names = _library()
-    if "seated" not in names:
-        pytest.skip("seated not shipped")
+    assert "seated" in names, "seated not shipped"
     from bodyscan import poses
     from bodyscan import simulator
 
@@ -347,8 +346,7 @@ def test_seated_scanned_at_2mm_is_fitted():
 
 def _scan_and_fit(name, k=1):
     names = _library()
-    if name not in names:
-        pytest.skip(f"{name} not shipped")
+    assert name in names, f"{name} not shipped"
     from bodyscan import poses
     from bodyscan import simulator
 
@@ -565,8 +563,7 @@ def test_cli_writes_fit_json_and_preview(tmp_path, standing_scans):
 def _fit_or_refuse(name, resolution, k, rot=0.0):
     """(fit or None when refused, ground-truth joints) of a library body scanned at ``resolution``."""
     names = _library()
-    if name not in names:
-        pytest.skip(f"{name} not shipped")
+    assert name in names, f"{name} not shipped"
     from bodyscan import poses
     from bodyscan import simulator
 
@@ -811,8 +808,6 @@ def test_a_roll_from_the_legs_needs_a_waist_wider_than_deep():
 @pytest.fixture(scope="module")
 def library_table():
     names = _library()
-    if not names:
-        pytest.skip("no shipped postures")
     from bodyscan import poses
     from bodyscan.benchmarks.fit_table import CONDITIONS, run_one
 
@@ -823,8 +818,7 @@ def test_a_section_pointed_at_the_cameras_is_missing_from_the_scan_and_others_ar
     """`fit_table.seen_fractions` on the simulator's ground truth: standing shows every section;
     arms held forward (seen end-on by both cameras) leave the forearms out, so listing them unfitted
     is what the issue allows, while listing a forearm of the standing scan is a miss."""
-    if not {"standing", "arms_forward"} <= set(_library()):
-        pytest.skip("library postures missing")
+    assert {"standing", "arms_forward"} <= set(_library()), "library postures missing"
     from bodyscan import poses
     from bodyscan import simulator
     from bodyscan.benchmarks.fit_table import SEEN, outcome, seen_fractions
@@ -852,8 +846,7 @@ def test_a_body_turned_in_the_scanner_is_fitted_in_the_facing_that_explains_it()
     the points (0.58). The kept fit meets the targets and explains more."""
     from bodyscan.benchmarks.fit_table import run_one, score_fit, turned_body
 
-    if "heavy_standing" not in _library():
-        pytest.skip("library postures missing")
+    assert "heavy_standing" in _library(), "library postures missing"
     from bodyscan import poses
     from bodyscan import simulator
     from bodyscan.recon.posture.fit import _estimate, facing_frame
@@ -927,8 +920,7 @@ def test_a_cloud_refused_on_one_lattice_is_fitted_on_the_shifted_one():
     shows them) and meets issue 4's targets fitted on the lattice shifted by half a voxel."""
     from bodyscan.benchmarks.fit_table import run_one
 
-    if "squat" not in _library():
-        pytest.skip("library postures missing")
+    assert "squat" in _library(), "library postures missing"
     from bodyscan import poses
 
     body = poses.load_body("squat")
@@ -946,8 +938,7 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     (In its feet's facing both ways meet the targets.)"""
     from bodyscan.benchmarks.fit_table import outcome
 
-    if "tall_walking" not in _library():
-        pytest.skip("library postures missing")
+    assert "tall_walking" in _library(), "library postures missing"
     from bodyscan import poses, simulator
     from bodyscan.recon.posture.fit import _estimate, facing_frame
 
@@ -976,8 +967,7 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
     the targets (k = 2, elbow 10.1 cm). Both rules hold for adult sizes and both legs only."""
     from bodyscan.benchmarks.fit_table import run_one
 
-    if "child_arms_raised" not in _library():
-        pytest.skip("library postures missing")
+    assert "child_arms_raised" in _library(), "library postures missing"
     from bodyscan import poses
 
     row = run_one(poses.load_body("child_arms_raised"), f"k{k}", 0.02, FitParams(), clean=False)
@@ -991,8 +981,7 @@ def test_legs_ending_in_feet_are_never_judged_cut():
     standing keeps both lower legs; cut from the scan (no feet), they are listed."""
     from bodyscan.benchmarks.fit_table import run_one
 
-    if "standing" not in _library():
-        pytest.skip("library postures missing")
+    assert "standing" in _library(), "library postures missing"
     from bodyscan import poses
 
     body = poses.load_body("standing")
@@ -1013,8 +1002,7 @@ def test_lower_legs_seen_from_the_side_stay_on_their_points():
     from bodyscan.benchmarks.fit_table import run_one
     from bodyscan.recon.posture.adjust import _turn_lower_legs
 
-    if "a_pose" not in _library():
-        pytest.skip("library postures missing")
+    assert "a_pose" in _library(), "library postures missing"
     from bodyscan import poses
 
     row = run_one(poses.load_body("a_pose"), "k1_turn90", 0.01, FitParams(), clean=False)
@@ -1243,8 +1231,7 @@ def test_a_lower_leg_stands_on_its_own_points_when_its_thigh_is_missing_from_the
     is listed as missing from the scan (seen on 0.14 of its area); its lower leg is seen (0.20) and
     stands on its own points and checks, no longer listed with it (measured: knee 4.0 cm, ankle
     2.1 cm off, 7 degrees from its bone)."""
-    if "squat" not in _library():
-        pytest.skip("library postures missing")
+    assert "squat" in _library(), "library postures missing"
     from bodyscan import poses
     from bodyscan import simulator
 

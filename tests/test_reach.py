@@ -96,8 +96,7 @@ def _arms_forward_scan():
     from bodyscan import poses
     from bodyscan import simulator
 
-    if "arms_forward" not in poses.list_bodies():
-        pytest.skip("arms_forward not shipped")
+    assert "arms_forward" in poses.list_bodies(), "arms_forward not shipped"
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return poses.load_body("arms_forward"), simulator.scan(poses.load_body("arms_forward"),

@@ -56,7 +56,24 @@ def test_no_generic_top_level_module_is_installed(tmp_path):
     assert out[:2] == ["[]", "True True True"]
 
 
-def test_help_explains_every_command():
+def test_help_explains_every_command(capsys):
+    """The commands the README's reference lists are the commands ``bodyscan --help`` lists, each
+    with its line of explanation, and each explains itself under ``bodyscan COMMAND --help``."""
+    from bodyscan.benchmarks.cli import main
+
+    text = (ROOT / "README.md").read_text().split("## Commands", 1)[1]
+    reference = re.search(r"```text\n(.+?)\n```", text, flags=re.S).group(1)
+    documented = set(re.findall(r"^bodyscan (\w+)", reference, flags=re.M))
+    assert {"poses", "scan", "fit", "reconstruct", "bench", "score", "sweep", "report"} <= documented
     out = subprocess.run([sys.executable, "-m", "bodyscan.benchmarks.cli", "--help"], capture_output=True,
                          text=True, check=True).stdout
-    assert "poses" in out
+    listing = out.split("COMMAND\n", 1)[1].split("\n\n", 1)[0]
+    # "    name   help", or "    name" with its help on the next, deeper indented line
+    explained = dict(re.findall(r"^ {4}(\w+)(?: +|\n {5,})(\S.*)$", listing, flags=re.M))
+    assert set(explained) == documented, (sorted(explained), sorted(documented))
+    for command in sorted(documented):
+        with pytest.raises(SystemExit) as done:
+            main([command, "--help"])
+        usage = capsys.readouterr().out
+        assert done.value.code == 0 and usage.startswith(f"usage: bodyscan {command} "), command
+        assert "options:" in usage and "--help" in usage, command

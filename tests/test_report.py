@@ -281,10 +281,11 @@ def test_report_of_only_failures(tmp_path):
     assert "Failed jobs" in index.read_text()
 
 
-def test_best_settings_state_their_objective_and_flat_axes_are_flagged(built):
+def test_best_settings_state_their_objective_and_flat_axes_are_flagged(built, tmp_path):
     """Issue 18: "best settings" by F_seen@5mm within a spurious and bridging budget, the
-    objective written out; an axis that moves no tracked metric beyond the gate's tolerance is
-    flagged; the worst cases drawn are distinct meshes."""
+    objective written out; settings with identical results share a row, distinct ones do not; an
+    axis that moves no tracked metric beyond the gate's tolerance is flagged; the worst cases drawn
+    are distinct meshes."""
     root, _ = built
     md = (root / "rep" / "report.md").read_text()
     best = md.split("## Best reconstruction settings")[1].split("\n## ")[0]
@@ -292,8 +293,27 @@ def test_best_settings_state_their_objective_and_flat_axes_are_flagged(built):
     first = next(l for l in best.splitlines() if l.startswith("| proposed |"))
     # F depends on t_d alone (0.9 - t_d / 10): t_d 0.1 is best, and within budget (less spurious)
     assert "t_d=0.1" in first and "0.890" in first
-    # settings differing only in parameters without effect on the tracked metrics share a row
-    assert "identical results" not in first or "more setting" in first
+    # here every setting's (F, spurious, bridging) differs (spurious moves with t_n, bridging with
+    # mesh_theta): the five best are five rows, none merged
+    assert len([l for l in best.splitlines() if l.startswith("| proposed |")]) == 5
+    assert "identical results" not in best
+    # settings differing only in a parameter without effect (mesh_theta below) share a row
+    store = ResultStore(tmp_path / "sweep").open_for_writing()
+    for body, t_d, mt in itertools.product(BODIES, T_D, (5, 10)):
+        job = Job(f"{body}-{t_d}-{mt}".replace(".", "p"), f"s-{body}", body, 0, {"preset": "paper", "k": 1},
+                  "proposed", {"t_d": t_d, "mesh_theta": mt})
+        row = job.row()
+        row.update(status="ok", error=None, spurious_area_fraction=0.02 * t_d / 0.1, bridging_area_fraction=0.004,
+                   **{"fscore_seen@5mm": 0.9 - t_d / 10})
+        store.put(row)
+    store.write_json("meta.json", {"sweep": "flat", "runs": []})
+    flat = (report.build_report(tmp_path / "sweep", tmp_path / "rep", pictures=False).parent
+            / "report.md").read_text()
+    rows = [l for l in flat.split("## Best reconstruction settings")[1].split("\n## ")[0].splitlines()
+            if l.startswith("| proposed |")]
+    assert len(rows) == len(T_D), rows                  # one row per t_d: its two mesh_theta merged
+    assert all("(and 1 more setting(s) with identical results)" in l for l in rows), rows
+    assert "t_d=0.1" in rows[0] and "0.890" in rows[0]
     effects = md.split("## Which swept parameters matter")[1].split("\n## ")[0]
     verdicts = {(cells[1].strip(), cells[2].strip()): cells[-2].strip()
                 for cells in (l.split("|") for l in effects.splitlines() if l.startswith("| ")
