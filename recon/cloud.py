@@ -238,25 +238,25 @@ def _read_text(path: Path) -> np.ndarray:
     comment lines skipped). A first row that is not a row of numbers (a column header) or is one
     number alone (the point count of a .pts file) is skipped."""
     lines = path.read_text(errors="replace").splitlines()
-    number = [i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
-    if not number:
+    data_lines = [i for i, ln in enumerate(lines) if ln.strip() and not ln.lstrip().startswith(("#", "//"))]
+    if not data_lines:
         return np.zeros((0, 3))
-    delim = "," if "," in lines[number[0]] else None
-    first = lines[number[0]].split(delim)
+    delim = "," if "," in lines[data_lines[0]] else None
+    first = lines[data_lines[0]].split(delim)
     try:
         np.asarray(first, dtype=np.float64)
         header = len(first) == 1
     except ValueError:
         header = True
-    number = number[1:] if header else number
-    if not number:
+    data_lines = data_lines[1:] if header else data_lines
+    if not data_lines:
         return np.zeros((0, 3))
-    rows = [lines[i] for i in number]
+    rows = [lines[i] for i in data_lines]
     try:
         data = np.loadtxt(rows, delimiter=delim, ndmin=2, dtype=np.float64)
     except ValueError:   # name the file's first bad line (this loop runs on failure only)
         width = len(rows[0].split(delim))
-        for i, row in zip(number, rows):
+        for i, row in zip(data_lines, rows):
             cells = row.split(delim)
             try:
                 np.asarray(cells, dtype=np.float64)
