@@ -867,6 +867,57 @@ def test_a_body_turned_in_the_scanner_is_fitted_in_the_facing_that_explains_it()
     assert np.median(list(err.values())) <= 0.04
 
 
+def test_a_fit_in_doubt_is_made_in_every_facing_and_the_best_kept(monkeypatch):
+    """`_fit_facings`: a first turn not in doubt is kept without fitting the others; when it is in
+    doubt (`fit_facing_retry` sections unfitted, or under `fit_min_coverage` of the points
+    explained), every turn is fitted and the one with fewest sections unfitted, then most points
+    explained, is kept, even after a turn that is not in doubt (taking the first such turn was
+    faster but lost targets on the validate corpus). A turn refused is never kept, and when every
+    turn is refused its first refusal is raised. (The fit itself is replaced here, so that which
+    turn is in doubt is known.)"""
+    from bodyscan.recon.posture import fit as F
+
+    class Turned:   # what `_estimate` returns: a fit with its unfitted sections, turned back as is
+        def __init__(self, unfitted, explained):
+            self.unfitted, self.sections = unfitted, explained
+
+        def moved(self, R, c):
+            return self
+
+    pts = np.random.default_rng(0).normal(size=(2000, 3)) * [0.15, 0.1, 0.5] + [0, 0, 0.9]
+    params = FitParams()
+    many = ("forearm_l", "upper_arm_l", "hand_l", "lower_leg_r")
+    assert len(many) >= params.fit_facing_retry and params.fit_facing == 4
+    refused = ReconError("posture not found")
+    for answers, tried, kept in (
+            ([Turned(("hand_l",), 0.8), Turned((), 0.99), Turned((), 0.9), Turned((), 0.9)], 1, 0),
+            ([Turned(many, 0.9), Turned((), 0.7), Turned((), 0.95), Turned((), 0.99)], 4, 3),
+            ([Turned((), 0.5), refused, Turned(many, 0.9), Turned((), 0.52)], 4, 3),
+            ([refused, Turned(many[:3], 0.8), Turned(many, 0.95), refused], 4, 1)):
+        calls = []
+
+        def estimate(points, params, front=None, lattice=0.0, answers=answers, calls=calls):
+            calls.append(lattice)
+            if isinstance(answers[len(calls) - 1], ReconError):
+                raise answers[len(calls) - 1]
+            return answers[len(calls) - 1]
+
+        monkeypatch.setattr(F, "_estimate", estimate)
+        monkeypatch.setattr(F, "explained_fraction", lambda sample, sections, distance: sections)
+        assert F._fit_facings(pts, params) is answers[kept]
+        assert len(calls) == tried
+    calls = []
+
+    def refuse(points, params, front=None, lattice=0.0):
+        calls.append(lattice)
+        raise ReconError(f"refusal {len(calls)}")
+
+    monkeypatch.setattr(F, "_estimate", refuse)
+    with pytest.raises(ReconError, match="refusal 1$"):
+        F._fit_facings(pts, params)
+    assert len(calls) == 4
+
+
 def test_library_fits_are_never_silent_nonsense(library_table):
     """No WRONG fit (median > 10 cm or a joint > 30 cm with no error raised), and no refusal: every
     shipped posture is a whole body."""
