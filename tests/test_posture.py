@@ -889,33 +889,30 @@ def test_a_fit_in_doubt_is_made_in_every_facing_and_the_best_kept(monkeypatch):
     many = ("forearm_l", "upper_arm_l", "hand_l", "lower_leg_r")
     assert len(many) >= params.fit_facing_retry and params.fit_facing == 4
     refused = ReconError("posture not found")
-    for answers, tried, kept in (
+    every = [ReconError(f"refusal {i}") for i in (1, 2, 3, 4)]
+    monkeypatch.setattr(F, "explained_fraction", lambda sample, sections, distance: sections)
+    for answers, tried, kept in (   # kept None: the first refusal is raised
             ([Turned(("hand_l",), 0.8), Turned((), 0.99), Turned((), 0.9), Turned((), 0.9)], 1, 0),
             ([Turned(many, 0.9), Turned((), 0.7), Turned((), 0.95), Turned((), 0.99)], 4, 3),
             ([Turned((), 0.5), refused, Turned(many, 0.9), Turned((), 0.52)], 4, 3),
-            ([refused, Turned(many[:3], 0.8), Turned(many, 0.95), refused], 4, 1)):
+            ([refused, Turned(many[:3], 0.8), Turned(many, 0.95), refused], 4, 1),
+            (every, 4, None)):
         calls = []
 
         def estimate(points, params, front=None, lattice=0.0, answers=answers, calls=calls):
             calls.append(lattice)
-            if isinstance(answers[len(calls) - 1], ReconError):
-                raise answers[len(calls) - 1]
-            return answers[len(calls) - 1]
+            answer = answers[len(calls) - 1]
+            if isinstance(answer, ReconError):
+                raise answer
+            return answer
 
         monkeypatch.setattr(F, "_estimate", estimate)
-        monkeypatch.setattr(F, "explained_fraction", lambda sample, sections, distance: sections)
-        assert F._fit_facings(pts, params) is answers[kept]
+        if kept is None:
+            with pytest.raises(ReconError, match="refusal 1$"):
+                F._fit_facings(pts, params)
+        else:
+            assert F._fit_facings(pts, params) is answers[kept]
         assert len(calls) == tried
-    calls = []
-
-    def refuse(points, params, front=None, lattice=0.0):
-        calls.append(lattice)
-        raise ReconError(f"refusal {len(calls)}")
-
-    monkeypatch.setattr(F, "_estimate", refuse)
-    with pytest.raises(ReconError, match="refusal 1$"):
-        F._fit_facings(pts, params)
-    assert len(calls) == 4
 
 
 def test_library_fits_are_never_silent_nonsense(library_table):
