@@ -262,7 +262,9 @@ class BodyFit:
         Fitted sections, by name; a section that could not be fitted is absent.
     joints : dict of str to (3,) float
         Joint positions by canonical name (pelvis, chest, neck, head, shoulder_l, ...), metres: the
-        fit's estimate of the body's joints (reported, and scored against the truth).
+        fit's estimate of the body's joints (reported, and scored against the truth). Those of
+        unfitted sections are absent, and so is an elbow or knee whose distal section is unfitted
+        (`recon.posture.fit._reported_joints`).
     residuals : dict of str to float
         Per fitted section, RMS distance (metres) of its points to its model surface.
     unfitted : tuple of str

@@ -982,9 +982,9 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     """tall_walking (1.97 m) at k = 3, fitted in the facing turned 180 degrees from its feet's (the one
     the cloud's third moment gave): its first match's hips sat high, the legs measured 2.18 m and
     crown to sole 2.02 m, 0.086 apart (under `match_size_disagree`): sized by the legs alone it missed
-    the targets (hip 11.1 cm off); matched at both sizes, the one explaining more points is 2.02 m.
-    (In its feet's facing both ways meet the targets.)"""
-    from bodyscan.benchmarks.fit_table import outcome
+    the targets (hip 11.1 cm off; now it lists a lower leg the scan shows); matched at both sizes, the
+    one explaining more points is 2.02 m. (In its feet's facing both ways meet the targets.)"""
+    from bodyscan.benchmarks.fit_table import outcome, seen_fractions
 
     assert "tall_walking" in _library(), "library postures missing"
     from bodyscan import poses, simulator
@@ -993,7 +993,8 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     body = poses.load_body("tall_walking")
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pts = simulator.scan(body, simulator.preset("paper", resolution=0.01, k=3)).points
+        scan = simulator.scan(body, simulator.preset("paper", resolution=0.01, k=3))
+    pts, seen = scan.points, seen_fractions(body, scan.gt_section, 0.01)
     R, c = facing_frame(pts)
     R = _rz(180) @ R
     rows = []
@@ -1002,7 +1003,7 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
             warnings.simplefilter("ignore")
             fit = _estimate(np.round((pts - c) @ R.T, 9), params).moved(R.T, c)
         err, ang = _scores(fit, body.joint_dict())
-        rows.append(outcome(err, ang, fit.unfitted))
+        rows.append(outcome(err, ang, fit.unfitted, seen))
     assert rows[0] == "pass" and rows[1] not in ("pass", "part"), rows
 
 
@@ -1327,3 +1328,24 @@ def test_a_head_leaning_beyond_the_necks_flexion_does_not_place_the_torso():
     assert head_in_range({"chest": chest, "head": head(55, [0, 1, 0])}, 60)
     assert not head_in_range({"chest": chest, "head": head(65, [0, -1, 0])}, 60)
     assert head_in_range({"chest": chest, "head": head(80, [1, 0, 0])}, 60)   # sideways: not flexion
+
+
+@pytest.mark.parametrize("unfitted, dropped", [
+    ((), ()),
+    (("lower_leg_l",), ("knee_l",)),
+    (("forearm_r",), ("elbow_r",)),
+    (("forearm_l", "lower_leg_r"), ("elbow_l", "knee_r")),
+    # an unfitted proximal or trunk section takes no joint of another section with it
+    (("thigh_l", "upper_arm_r", "head"), ()),
+])
+def test_an_elbow_or_knee_is_not_reported_without_its_distal_section(unfitted, dropped):
+    """`_reported_joints`: the elbow (knee) of an unfitted forearm (lower leg), which only the upper
+    arm's (thigh's) model length would place, is left out; every other joint is kept as it was."""
+    from bodyscan.recon.posture.fit import _reported_joints
+
+    names = ["pelvis", "chest", "neck", "head"] + [f"{j}_{s}" for j in ("shoulder", "elbow", "wrist", "hip",
+                                                                        "knee", "ankle") for s in "lr"]
+    joints = {n: np.full(3, float(i)) for i, n in enumerate(names)}
+    got = _reported_joints(joints, set(unfitted))
+    assert set(got) == set(names) - set(dropped)
+    assert all(got[n] is joints[n] for n in got)

@@ -203,7 +203,9 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    head and shoulders following (`recon.posture.joints.centre_neck`). The joints are the rig's (the body
    file format's), placed off the sections' ends and axes where the rig's lie
    (`recon.posture.bodymodel.JOINT_OFFSET`); the clustering cuts where the sections meet, at the
-   fit's seams (`recon.posture.joints.place_seams`), not at the joints; the sections reported in the
+   fit's seams (`recon.posture.joints.place_seams`), not at the joints. An elbow or knee whose distal
+   section is unfitted is not reported (`_reported_joints`: only the proximal section's model length
+   would place it). The sections reported in the
    `BodyFit` meet where the body file's section labels change, which is not always at a joint: the
    torso splits into waist and chest at `recon.posture.bodymodel.TORSO_SPLIT_CROTCH` of the way from the crotch seen in
    the points to the chest joint (with the hips flexed, no crotch: at `TORSO_SPLIT` of the waist
@@ -575,13 +577,24 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
     _check_leg_length(work, fitted, pose.body)
     fitted = centre_neck(work, fitted)
     seams = place_seams(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
-    joints = place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance)
+    joints = _reported_joints(place_joints(fitted, pose.body, back, work, arm_tolerance=params.fit_arm_size_tolerance),
+                              unfitted)
     fitted = joint_caps(split_knees(split_hips(work, split_torso(work, fitted)), seams, pose.body))
     coarse = BodyFit(sections=coarse_secs, joints=place_joints(coarse_secs, pose.body, back, work,
                                                                 arm_tolerance=params.fit_arm_size_tolerance))
     return BodyFit(sections=fitted, joints=joints, seams=seams,
                    residuals={k: float(resid[k]) for k in fitted}, unfitted=unfitted,
                    coarse=coarse, times={}), unfitted
+
+
+def _reported_joints(joints: dict, unfitted) -> dict:
+    """``joints`` without the elbows and knees whose distal section is in ``unfitted``.
+
+    An elbow or knee lies where its two sections meet. Without the distal one, only the proximal
+    section's model length places it (`_finish`): a guess, on a limb the fit has already lost part
+    of, which is better missing than silently off. The seams, where the clustering cuts, keep it."""
+    drop = {mid for _, dist, _, mid, _ in LIMBS if dist in unfitted}
+    return {k: v for k, v in joints.items() if k not in drop}
 
 
 def _head_seen(points, chest, body: StandardBody, min_points: int) -> bool:
