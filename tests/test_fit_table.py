@@ -25,6 +25,21 @@ def test_rates_count_met_and_silent_with_wilson_intervals():
     assert (lo, hi) == pytest.approx((0.1500, 0.8500), abs=1e-4)
 
 
+def test_rates_give_the_share_of_true_joints_the_fits_gave():
+    # two fits of 16 true joints giving 14 and 16; a refused run gives none and is not counted
+    rows = [{**_row("a", "pass"), "given": 14, "joints": 16}, {**_row("b", "fail"), "given": 16, "joints": 16},
+            _row("c", "refused")]
+    assert fit_table.rates(rows).endswith("; joints given 30/32 = 0.938")
+    assert "joints given" not in fit_table.rates([_row("c", "refused")])
+
+
+def test_a_run_counts_the_joints_its_fit_gave():
+    from bodyscan.poses import load_body
+
+    row = fit_table.run_one(load_body("standing"), "k1", 0.02)
+    assert row["joints"] == 16 and row["given"] == len(row["errors"])
+
+
 def test_summary_gives_the_rates_in_the_field_apart(monkeypatch, capsys):
     rows = {"tall": _row("tall", "fail", silent=True, outside=0.01), "short": _row("short", "pass")}
     monkeypatch.setattr("bodyscan.poses.expand_bodies", lambda names: list(names))
