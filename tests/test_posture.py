@@ -1349,3 +1349,93 @@ def test_an_elbow_or_knee_is_not_reported_without_its_distal_section(unfitted, d
     got = _reported_joints(joints, set(unfitted))
     assert set(got) == set(names) - set(dropped)
     assert all(got[n] is joints[n] for n in got)
+
+
+def _turn(axis, deg):
+    """(3, 3) rotation by ``deg`` degrees about the unit ``axis`` (Rodrigues)."""
+    K = np.cross(np.eye(3), axis)
+    a = np.radians(deg)
+    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
+
+
+def _column_mesh(start, end, a, b):
+    """A capsule from ``start`` to ``end`` whose section has radii ``a`` across x and ``b``."""
+    import trimesh
+
+    start, end = np.asarray(start, float), np.asarray(end, float)
+    L = float(np.linalg.norm(end - start))
+    d = (end - start) / L
+    m = trimesh.creation.capsule(height=L, radius=b, count=[32, 32])
+    m.apply_scale([a / b, 1.0, 1.0])
+    fx = np.array([1.0, 0.0, 0.0]) if abs(d[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    fx = fx - d * (fx @ d)
+    fx /= np.linalg.norm(fx)
+    T = np.eye(4)
+    T[:3, :3] = np.column_stack([fx, np.cross(d, fx), d])
+    T[:3, 3] = (start + end) / 2
+    return m.apply_transform(T)
+
+
+def _articulated_body(rng, stature=1.75):
+    """A body made of the model's own sections (`recon.posture.bodymodel`: its proportions and
+    radii at ``stature``), facing -y, in a random pose: each arm abducted 25-75 degrees, raised
+    forward up to 40 and its elbow flexed up to 80; each leg abducted up to 12 degrees, the hip
+    flexed -10 to 35 and the knee up to 45. Returns the mesh and its joints (section ends; wrists
+    and ankles a forearm and a shank from the elbows and knees)."""
+    import trimesh
+
+    from bodyscan.recon.posture.bodymodel import _F, standard_body
+
+    body, H = standard_body(stature), stature
+    X, Y, Z = np.eye(3)
+    J = {"pelvis": np.array([0.0, 0.0, 0.53 * H])}
+    J["chest"] = J["pelvis"] + _F["chest"] * H * Z
+    J["neck"] = J["pelvis"] + _F["neck"] * H * Z
+    parts = [_column_mesh(J["pelvis"], J["chest"], *body.radii("waist")),
+             _column_mesh(J["chest"], J["neck"], *body.radii("chest")),
+             _column_mesh(J["neck"], J["neck"] + _F["head"] * H * Z, *body.radii("head"))]
+    for s, side in (("l", 1.0), ("r", -1.0)):
+        root = J["pelvis"] + np.array([side * _F["shoulder_x"], 0.0, _F["shoulder_z"]]) * H
+        up = _turn(X, -rng.uniform(-10, 40)) @ _turn(Y, -side * rng.uniform(25, 75)) @ -Z
+        mid = root + _F["upper_arm"] * H * up
+        low = _turn(X, -rng.uniform(0, 80)) @ up
+        J[f"shoulder_{s}"], J[f"elbow_{s}"], J[f"wrist_{s}"] = root, mid, mid + _F["forearm"] * H * low
+        parts += [_column_mesh(root, mid, *body.radii("upper_arm")),
+                  _column_mesh(mid, mid + (_F["forearm"] + _F["hand"]) * H * low, *body.radii("forearm"))]
+        root = J["pelvis"] + np.array([side * _F["hip_x"], 0.0, _F["hip_z"]]) * H
+        up = _turn(X, -rng.uniform(-10, 35)) @ _turn(Y, -side * rng.uniform(0, 12)) @ -Z
+        mid = root + _F["thigh"] * H * up
+        low = _turn(X, rng.uniform(0, 45)) @ up
+        J[f"hip_{s}"], J[f"knee_{s}"], J[f"ankle_{s}"] = root, mid, mid + _F["lower_leg"] * H * low
+        parts += [_column_mesh(root, mid, *body.radii("thigh")),
+                  _column_mesh(mid, mid + (_F["lower_leg"] + _F["foot_height"]) * H * low, *body.radii("lower_leg"))]
+    mesh = trimesh.util.concatenate(parts)
+    lift = np.array([0.0, 0.0, -mesh.vertices[:, 2].min()])
+    mesh.apply_translation(lift)
+    return mesh, {k: v + lift for k, v in J.items()}
+
+
+def test_the_fit_recovers_the_limb_joints_of_an_articulated_body_across_random_poses():
+    """Issue 16's analytic test: bodies made of the model's own sections in 8 random poses, scanned
+    (`paper` preset, 10 mm, k = 1) and fitted: at least 6 of 8 meet issue 4's targets on the limb
+    joints (median at most 4 cm, none over 10 cm; all 8 where this was written, medians 2.9-3.7 cm;
+    the fit is chaotic, so the count has slack). The trunk's joints follow the rig's anatomy (the
+    pelvis above the crotch, the spine behind the torso's axis), which a body of columns does not
+    have: they are left out. Joints 6 cm off fail every pose."""
+    from bodyscan import simulator
+
+    limbs = [f"{j}_{s}" for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle") for s in "lr"]
+    met = []
+    for seed in range(8):
+        mesh, joints = _articulated_body(np.random.default_rng(seed))
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            scan = simulator.scan(mesh, simulator.preset("paper", resolution=0.01, k=1))
+            try:
+                fit = estimate_posture(scan.points, view_dir=scan.view_dir, head=scan.head)
+            except ReconError:
+                met.append(False)
+                continue
+        err = [np.linalg.norm(fit.joints[k] - joints[k]) for k in limbs if k in fit.joints]
+        met.append(len(err) >= 10 and np.median(err) <= 0.04 and max(err) <= 0.10)
+    assert sum(met) >= 6, met
