@@ -1351,13 +1351,6 @@ def test_an_elbow_or_knee_is_not_reported_without_its_distal_section(unfitted, d
     assert all(got[n] is joints[n] for n in got)
 
 
-def _turn(axis, deg):
-    """(3, 3) rotation by ``deg`` degrees about the unit ``axis`` (Rodrigues)."""
-    K = np.cross(np.eye(3), axis)
-    a = np.radians(deg)
-    return np.eye(3) + np.sin(a) * K + (1 - np.cos(a)) * K @ K
-
-
 def _column_mesh(start, end, a, b):
     """A capsule from ``start`` to ``end`` whose section has radii ``a`` across x and ``b``."""
     import trimesh
@@ -1384,7 +1377,11 @@ def _articulated_body(rng, stature=1.75):
     and ankles a forearm and a shank from the elbows and knees)."""
     import trimesh
 
+    from bodyscan.recon.geometry import rotvec
     from bodyscan.recon.posture.bodymodel import _F, standard_body
+
+    def turn(axis, deg):
+        return rotvec(np.radians(deg) * axis)
 
     body, H = standard_body(stature), stature
     X, Y, Z = np.eye(3)
@@ -1396,16 +1393,16 @@ def _articulated_body(rng, stature=1.75):
              _column_mesh(J["neck"], J["neck"] + _F["head"] * H * Z, *body.radii("head"))]
     for s, side in (("l", 1.0), ("r", -1.0)):
         root = J["pelvis"] + np.array([side * _F["shoulder_x"], 0.0, _F["shoulder_z"]]) * H
-        up = _turn(X, -rng.uniform(-10, 40)) @ _turn(Y, -side * rng.uniform(25, 75)) @ -Z
+        up = turn(X, -rng.uniform(-10, 40)) @ turn(Y, -side * rng.uniform(25, 75)) @ -Z
         mid = root + _F["upper_arm"] * H * up
-        low = _turn(X, -rng.uniform(0, 80)) @ up
+        low = turn(X, -rng.uniform(0, 80)) @ up
         J[f"shoulder_{s}"], J[f"elbow_{s}"], J[f"wrist_{s}"] = root, mid, mid + _F["forearm"] * H * low
         parts += [_column_mesh(root, mid, *body.radii("upper_arm")),
                   _column_mesh(mid, mid + (_F["forearm"] + _F["hand"]) * H * low, *body.radii("forearm"))]
         root = J["pelvis"] + np.array([side * _F["hip_x"], 0.0, _F["hip_z"]]) * H
-        up = _turn(X, -rng.uniform(-10, 35)) @ _turn(Y, -side * rng.uniform(0, 12)) @ -Z
+        up = turn(X, -rng.uniform(-10, 35)) @ turn(Y, -side * rng.uniform(0, 12)) @ -Z
         mid = root + _F["thigh"] * H * up
-        low = _turn(X, rng.uniform(0, 45)) @ up
+        low = turn(X, rng.uniform(0, 45)) @ up
         J[f"hip_{s}"], J[f"knee_{s}"], J[f"ankle_{s}"] = root, mid, mid + _F["lower_leg"] * H * low
         parts += [_column_mesh(root, mid, *body.radii("thigh")),
                   _column_mesh(mid, mid + (_F["lower_leg"] + _F["foot_height"]) * H * low, *body.radii("lower_leg"))]
