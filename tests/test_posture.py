@@ -1352,7 +1352,9 @@ def test_an_elbow_or_knee_is_not_reported_without_its_distal_section(unfitted, d
 
 
 def _column_mesh(start, end, a, b):
-    """A capsule from ``start`` to ``end`` whose section has radii ``a`` across x and ``b``."""
+    """A capsule from ``start`` to ``end`` with radius ``a`` towards world x (the body's left-right, as
+    the model's sections are wide: not `recon.geometry.frames_from_dirs`, whose x is arbitrary about
+    the axis) and ``b`` across both."""
     import trimesh
 
     start, end = np.asarray(start, float), np.asarray(end, float)
