@@ -580,7 +580,10 @@ class FitParams:
     voxel_spacing_factor: float = field(default=1.0,  # 2.2: voxel edge / sparsest spacing (chosen)
         metadata={"help": "voxel edge = this times the sparsest spacing", "unit": "", "range": (0.1, 100)})
     voxel_reach: float = field(default=0.3,  # 2.2: inside test: enclosing contours within this, m (chosen)
-        metadata={"help": "inside test: enclosing contour voxels within this", "unit": "m", "range": (0, 2)})
+        metadata={"help": "inside test (without view directions, or voxel_views off): enclosing contour voxels within this", "unit": "m", "range": (0, 2)})
+    voxel_views: bool = field(default=True,  # 2.2: inside = behind every camera's seen surface (ours; chosen)
+        metadata={"help": "with the points' view directions, inside voxels are those behind the surface every "
+                          "camera saw (the volume between the views); off: those the contours enclose", "unit": "", "range": None})
     contour_weight: float = field(default=2.0,  # 2.3(1), 4.2: weight n of contour voxels, n = 2
         metadata={"help": "weight n of contour voxels in the match (paper: 2)", "unit": "", "range": (-100, 100)})
     match_empty_weight: float = field(default=-1.0,  # 2.3(1): weight of empty voxels in the match (chosen)
@@ -857,10 +860,10 @@ class FitParams:
 #: neighbour with fewer labels. Surface: the paper's removal of inner triangles (multi-section
 #: points) only: no open joint ends, no fold, carving, view or concavity rule, flat triangles.
 #: Posture: the cloud fitted as it lies (subjects face the camera, paper 4.1), one size estimate,
-#: no alternatives, no check against the cameras' view. Kept, being steps without which nothing
-#: works, and the same in ``simple``: the hull peel of Delaunay's convex hull
-#: (``hull_edge_factor``), the fit's search itself (``recon.posture.match``, whose voxel score is
-#: paper 2.3).
+#: no alternatives, no check against the cameras' view, the volume enclosed by its contours (not
+#: between the cameras' views). Kept, being steps without which nothing works, and the same in
+#: ``simple``: the hull peel of Delaunay's convex hull (``hull_edge_factor``), the fit's search
+#: itself (``recon.posture.match``, whose voxel score is paper 2.3).
 PAPER = {
     # clustering (paper 3.1-3.2)
     "joint_plane_weight": 0.0, "side_joint_planes": False, "joint_plane_bones": False,
@@ -877,7 +880,7 @@ PAPER = {
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
     "fit_facing": 0, "match_size_both": 0, "match_alternatives": 0, "extremities": False,
-    "fit_min_agreement": 0.0, "fit_regrid": False,
+    "fit_min_agreement": 0.0, "fit_regrid": False, "voxel_views": False,
 }
 
 

@@ -4,9 +4,11 @@ A camera records, per pixel, the first surface along its line of sight; everythi
 camera and that point is empty. `Views` holds one depth buffer per head from the points and
 their view directions (parallel or perspective heads); the returned function says how far any
 position lies in front of the seen surface of its pixel (`Views.air`), and how far beside the
-silhouettes of every head (`Views.beside`). Used by the closed surface (what a camera looked through
-or past is outside the body, `recon.surface.closed`) and by the posture fit's check of the fitted
-model against the scan (`recon.posture.seen`).
+silhouettes of every head (`Views.beside`), and whether it lies behind what every head saw
+(`Views.behind`). Used by the closed surface (what a camera looked through or past is outside the
+body, `recon.surface.closed`), by the posture fit's volume (what no camera looked through is
+inside, `recon.posture.volume`) and its check of the fitted model against the scan
+(`recon.posture.seen`).
 """
 
 from __future__ import annotations
@@ -117,6 +119,22 @@ class Views:
             zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
             a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
             out = np.maximum(out, a)
+        return out
+
+    def behind(self, at: np.ndarray) -> np.ndarray:
+        """(m,) bool: whether each position ``at`` (m, 3) lies behind the surface every head saw
+        along its line of sight (the nearest seen point of its pixel and the eight around it): the
+        volume between the views, which no camera looked through. False where a head saw nothing
+        there, and everywhere when no head is known."""
+        at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
+        out = np.full(len(at), bool(self.heads))
+        for i, head in enumerate(self.heads):
+            near = head[4]
+            k, dx, ok = self.pixels(i, at)
+            b = np.zeros(len(at), dtype=bool)
+            zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
+            b[ok] = np.isfinite(zk) & (dx[ok] <= zk)
+            out &= b
         return out
 
     #: Margin of `beside`'s images around the points, pixels.

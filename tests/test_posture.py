@@ -899,7 +899,7 @@ def test_a_fit_in_doubt_is_made_in_every_facing_and_the_best_kept(monkeypatch):
             (every, 4, None)):
         calls = []
 
-        def estimate(points, params, front=None, lattice=0.0, answers=answers, calls=calls):
+        def estimate(points, params, front=None, lattice=0.0, behind=None, answers=answers, calls=calls):
             calls.append(lattice)
             answer = answers[len(calls) - 1]
             if isinstance(answer, ReconError):
@@ -923,11 +923,10 @@ def test_library_fits_are_never_silent_nonsense(library_table):
 
 
 #: Library runs that miss issue 4's targets with the fit made as `bodyscan fit` makes it (outliers
-#: left out first): child_arms_raised at k = 1, and the same scan turned, is fitted with its torso
-#: and head 7-11 cm off (median joint error 7.1 cm, worst 11.9), passing every check; fitted on the
-#: scan as it lies, without the outlier test, it met them (3.8 cm, worst 6.9). The volume match is
-#: chaotic (`fit_regrid`): listed here until the fit is robust to such a change of the points.
-LIBRARY_MISSES = {("child_arms_raised", "k1"), ("child_arms_raised", "k1_rot137")}
+#: left out first): leaning at k = 2 is fitted with its left shoulder 12.2 cm off (median joint
+#: error 4.3 cm), every section fitted, passing every check. The volume match is chaotic
+#: (`fit_regrid`): listed here until the fit is robust to such a change of the points.
+LIBRARY_MISSES = {("leaning", "k2")}
 
 
 def test_library_fits_meet_the_issue_targets(library_table):
@@ -960,6 +959,41 @@ def test_the_shifted_lattice_discretizes_the_same_points_half_a_voxel_off():
     # 11 mm from the corner: voxel 3 on the first lattice (3.55), voxel 4 on the shifted one (4.05)
     assert a.contour[3, 3, 3] and not a.contour[4, 3, 3]
     assert b.contour[3, 3, 3] and b.contour[4, 3, 3]
+
+
+def test_a_column_seen_only_at_its_ends_is_filled_between_the_views():
+    """`voxelize`'s ``behind`` (`recon.views.Views.behind`): an elliptic column 0.32 m deep along
+    the cameras' axis and 0.2 m wide, seen by the front and rear cameras only on its two ends
+    (surface facing them at under 60 degrees; its flanks, along the view, unseen: a body turned
+    90 degrees in the scanner shows its trunk so) has two 0.3 m gaps in every slice, which the
+    closing and the in-plane test do not enclose; the space behind both seen ends is filled, and
+    nothing outside the column is."""
+    from bodyscan.recon.posture.seen import scan_views
+    from bodyscan.recon.posture.volume import voxelize
+    from views import front_rear_zbuffer
+
+    a, b, height, size = 0.10, 0.16, 0.6, 0.025                  # semi-axes along x and y (the view)
+    t, z = np.meshgrid(np.linspace(0, 2 * np.pi, 600, endpoint=False), np.linspace(0, height, 121))
+    P = np.column_stack([a * np.cos(t.ravel()), b * np.sin(t.ravel()), z.ravel()])
+    N = np.column_stack([np.cos(t.ravel()) / a, np.sin(t.ravel()) / b, np.zeros(t.size)])
+    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    ends = np.abs(N[:, 1]) > 0.5
+    keep, vd = front_rear_zbuffer(P[ends], N[ends], 0.01)
+    pts, vd = P[ends][keep], vd[keep]
+    assert np.abs(pts[:, 0]).max() < 0.8 * a                    # the flanks are not in the scan
+
+    def cover(vol):
+        c = vol.centres(np.ones(vol.shape, bool)).reshape(vol.shape + (3,))
+        solid = vol.inside | vol.contour
+        r_in = (c[..., 0] / (a - size)) ** 2 + (c[..., 1] / (b - size)) ** 2 < 1
+        deep = r_in & (c[..., 2] > 2 * size) & (c[..., 2] < height - 2 * size)
+        r_out = (c[..., 0] / (a + size)) ** 2 + (c[..., 1] / (b + size)) ** 2 > 1
+        return solid[deep].mean(), int(vol.inside[r_out].sum())
+
+    plain, _ = cover(voxelize(pts, size))
+    filled, outside = cover(voxelize(pts, size, behind=scan_views(pts, vd).behind))
+    assert plain < 0.5, plain
+    assert filled > 0.98 and outside == 0, (filled, outside)
 
 
 def test_a_cloud_refused_on_one_lattice_is_fitted_on_the_shifted_one():
@@ -1414,27 +1448,42 @@ def _articulated_body(rng, stature=1.75):
     return mesh, {k: v + lift for k, v in J.items()}
 
 
-def test_the_fit_recovers_the_limb_joints_of_an_articulated_body_across_random_poses():
-    """Issue 16's analytic test: bodies made of the model's own sections in 8 random poses, scanned
-    (`paper` preset, 10 mm, k = 1) and fitted: at least 6 of 8 meet issue 4's targets on the limb
-    joints (median at most 4 cm, none over 10 cm; all 8 where this was written, medians 2.9-3.7 cm;
-    the fit is chaotic, so the count has slack). The trunk's joints follow the rig's anatomy (the
-    pelvis above the crotch, the spine behind the torso's axis), which a body of columns does not
-    have: they are left out. Joints 6 cm off fail every pose."""
+def _limb_targets_met(seed: int, turn: float = 0.0) -> bool:
+    """Whether the fit of `_articulated_body` of ``seed``, turned ``turn`` degrees about the
+    vertical in the scanner (`paper` preset, 10 mm, k = 1), meets issue 4's targets on the limb
+    joints (median at most 4 cm, none over 10 cm, at least 10 of the 12 given). The trunk's joints
+    follow the rig's anatomy (the pelvis above the crotch, the spine behind the torso's axis),
+    which a body of columns does not have: they are left out."""
     from bodyscan import simulator
 
     limbs = [f"{j}_{s}" for j in ("shoulder", "elbow", "wrist", "hip", "knee", "ankle") for s in "lr"]
-    met = []
-    for seed in range(8):
-        mesh, joints = _articulated_body(np.random.default_rng(seed))
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            scan = simulator.scan(mesh, simulator.preset("paper", resolution=0.01, k=1))
-            try:
-                fit = estimate_posture(scan.points, view_dir=scan.view_dir, head=scan.head)
-            except ReconError:
-                met.append(False)
-                continue
-        err = [np.linalg.norm(fit.joints[k] - joints[k]) for k in limbs if k in fit.joints]
-        met.append(len(err) >= 10 and np.median(err) <= 0.04 and max(err) <= 0.10)
+    mesh, joints = _articulated_body(np.random.default_rng(seed))
+    R = _rz(turn)
+    mesh.vertices = mesh.vertices @ R.T
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scan = simulator.scan(mesh, simulator.preset("paper", resolution=0.01, k=1))
+        try:
+            fit = estimate_posture(scan.points, view_dir=scan.view_dir, head=scan.head)
+        except ReconError:
+            return False
+    err = [np.linalg.norm(fit.joints[k] - R @ joints[k]) for k in limbs if k in fit.joints]
+    return len(err) >= 10 and np.median(err) <= 0.04 and max(err) <= 0.10
+
+
+def test_the_fit_recovers_the_limb_joints_of_an_articulated_body_across_random_poses():
+    """Issue 16's analytic test: bodies made of the model's own sections in 8 random poses, scanned
+    and fitted (`_limb_targets_met`): at least 6 of 8 meet issue 4's targets on the limb joints (all
+    8 where this was written, medians 2.9-3.7 cm; the fit is chaotic, so the count has slack).
+    Joints 6 cm off fail every pose."""
+    met = [_limb_targets_met(seed) for seed in range(8)]
     assert sum(met) >= 6, met
+
+
+def test_the_fit_recovers_the_limb_joints_of_articulated_bodies_turned_in_the_scanner():
+    """The same bodies turned 90 degrees in the scanner, 16 poses: the cameras see their sides, and
+    the trunk's front and back, along the lines of sight, not at all. The volume is enclosed
+    between the views (`voxelize`'s ``behind``), so at least 8 of 16 meet the targets (11 where
+    this was written; 2 when the volume was enclosed by the closing and the in-plane test alone)."""
+    met = [_limb_targets_met(seed, 90.0) for seed in range(16)]
+    assert sum(met) >= 8, met

@@ -8,7 +8,7 @@ import pytest
 from bodyscan.recon import ReconError
 from bodyscan.recon.model import BodyFit, SectionShape
 from bodyscan.recon.params import FitParams
-from bodyscan.recon.posture.fit import _check_seen
+from bodyscan.recon.posture.fit import _check_seen, _views
 from bodyscan.recon.posture.seen import _surface, agreement, confirmed_fraction, scan_views
 from views import front_rear_zbuffer
 
@@ -69,12 +69,13 @@ def test_an_arm_at_another_depth_is_contradicted_within_the_tolerance():
 def test_a_fit_the_cameras_contradict_is_refused(views):
     pts, vd = _scan([TRUNK, ARM])
     right = BodyFit(sections={"chest": TRUNK, "upper_arm_l": ARM}, joints={})
-    _check_seen(right, pts, vd, None, FitParams())           # passes
+    cams = _views(pts, vd, None, FitParams())
+    _check_seen(right, cams, FitParams())           # passes
     # the whole model 15 cm toward the front camera: everything it shows lies in seen air
     wrong = right.moved(np.eye(3), np.array([0.0, -0.15, 0.0]))
     with pytest.raises(ReconError, match="confirms only"):
-        _check_seen(wrong, pts, vd, None, FitParams())
-    _check_seen(wrong, pts, vd, None, FitParams(fit_min_agreement=0.0))   # off
+        _check_seen(wrong, cams, FitParams())
+    _check_seen(wrong, cams, FitParams(fit_min_agreement=0.0))   # off
 
 
 def test_a_trunk_the_cameras_contradict_is_not_hidden_by_limbs_that_agree(views):

@@ -16,7 +16,11 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    [`voxel_min`, `voxel_max`]. The volume and the coarse match (steps 2-4) use at most
    `match_max_points` of the points, the fine adjustment (step 5) up to `fit_max_points`: a scan
    finer than 10 mm is matched on a coarser volume, then adjusted on its own points (coarse to fine:
-   the match's cost no longer grows with the scan's density).
+   the match's cost no longer grows with the scan's density). Given the points' view directions,
+   the inside voxels are those behind the surface every camera saw (`voxel_views`, not in the
+   paper, whose volume holds what the contours enclose): a body turned in the scanner shows the
+   cameras its trunk's sides, its front and back along the lines of sight, and gaps that wide in
+   the contours enclose nothing.
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
    model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
    weighted n. To work for any posture we start from the centre of the thickest part of the volume
@@ -274,13 +278,14 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
     """
     params = params or FitParams()
     points = check_points(points)
+    views = None if view_dir is None else _views(points, view_dir, head, params)
     try:
-        fit = _fit_checked(points, params, view_dir, head, 0.0)
+        fit = _fit_checked(points, params, views, 0.0)
     except ReconError as first:
         if not params.fit_regrid:
             raise
         try:   # the same points on the lattice shifted by half a voxel
-            fit = _fit_checked(points, params, view_dir, head, 0.5)
+            fit = _fit_checked(points, params, views, 0.5)
         except ReconError:
             raise first from None
     if fit.unfitted:
@@ -289,28 +294,37 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
     return fit
 
 
-def _fit_checked(points, params: FitParams, view_dir, head, lattice: float) -> BodyFit:
+def _fit_checked(points, params: FitParams, views, lattice: float) -> BodyFit:
     """The fit on the volume whose lattice is shifted by ``lattice`` voxels, checked against the
-    cameras' view (`_check_seen`) when the view directions are known; `ReconError` when refused."""
-    fit = _fit_facings(points, params, lattice) if params.fit_facing else _estimate(points, params, lattice=lattice)
-    if view_dir is not None and params.fit_min_agreement > 0:
-        _check_seen(fit, points, view_dir, head, params)
+    cameras' view ``views`` (`_views`; None: not known) by `_check_seen`; `ReconError` when
+    refused. With the views, the volume is also enclosed between them (`voxel_views`)."""
+    behind = views.behind if views is not None and params.voxel_views else None
+    fit = _fit_facings(points, params, lattice, behind) if params.fit_facing else \
+        _estimate(points, params, lattice=lattice, behind=behind)
+    if views is not None and params.fit_min_agreement > 0:
+        _check_seen(fit, views, params)
     return fit
 
 
-def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None:
-    """`ReconError` when the cameras' view contradicts the fitted model: of the surface its trunk,
-    or its limbs, show them where they saw points, under `fit_min_agreement` is confirmed by a
-    point at its depth (`recon.posture.seen.confirmed_parts`). A model placed wrongly inside the
-    body's outline explains the points about as well as a right one (the coverage check passes
-    it), but shows the cameras surfaces where they saw none, or saw them at other depths."""
+def _views(points, view_dir, head, params: FitParams):
+    """The cameras' depth buffers (`recon.posture.seen.scan_views`) of at most `fit_max_points` of
+    the points (a 2 mm scan's pixels of a centimetre hold many), in pixels of at least a third of
+    `fit_agreement_tolerance`."""
     vd = np.broadcast_to(np.asarray(view_dir, dtype=np.float64), points.shape)
     if not np.isfinite(vd).all():
         raise ReconError("view_dir must be finite (n, 3) directions, one per point")
-    # on at most `fit_max_points` of the points (a 2 mm scan's pixels of a centimetre hold many)
     step = max(1, -(-len(points) // params.fit_max_points))
-    views = scan_views(points[::step], vd[::step], None if head is None else np.asarray(head)[::step],
-                       min_pixel=params.fit_agreement_tolerance / 3)
+    return scan_views(points[::step], vd[::step], None if head is None else np.asarray(head)[::step],
+                      min_pixel=params.fit_agreement_tolerance / 3)
+
+
+def _check_seen(fit: BodyFit, views, params: FitParams) -> None:
+    """`ReconError` when the cameras' view ``views`` (`_views`) contradicts the fitted model: of
+    the surface its trunk, or its limbs, show them where they saw points, under
+    `fit_min_agreement` is confirmed by a point at its depth (`recon.posture.seen.confirmed_parts`).
+    A model placed wrongly inside the body's outline explains the points about as well as a right
+    one (the coverage check passes it), but shows the cameras surfaces where they saw none, or saw
+    them at other depths."""
     parts = confirmed_parts(fit.sections, views, params.fit_agreement_tolerance)
     part = min(parts, key=parts.get)
     if parts[part] < params.fit_min_agreement:
@@ -320,7 +334,7 @@ def _check_seen(fit: BodyFit, points, view_dir, head, params: FitParams) -> None
                          f"{100 * params.fit_min_agreement:.0f}%)")
 
 
-def _fit_facings(points, params: FitParams, lattice: float = 0.0) -> BodyFit:
+def _fit_facings(points, params: FitParams, lattice: float = 0.0, behind=None) -> BodyFit:
     """The fit of the cloud turned to its own facing (`facing_frame`), turned back; made again in
     every turn of 360 / `fit_facing` degrees when it is in doubt. Every facing is read from the
     cloud's shape, so a scan turned about the vertical gets the same fit, turned.
@@ -349,7 +363,8 @@ def _fit_facings(points, params: FitParams, lattice: float = 0.0) -> BodyFit:
             # rounded to 1 nm: the same cloud turned differently comes out equal to the last bit
             # (the volume's voxels and the searches would otherwise see different rounding)
             turned = _estimate(np.round((points - c) @ R.T, 9), params, front=R @ front if sure else None,
-                               lattice=lattice)
+                               lattice=lattice, behind=None if behind is None else
+                               (lambda x, R=R: behind(x @ R + c)))
         except ReconError as e:
             errors.append(e)
             continue
@@ -362,10 +377,12 @@ def _fit_facings(points, params: FitParams, lattice: float = 0.0) -> BodyFit:
     return max(fits.values(), key=lambda f: f[:2])[2]
 
 
-def _estimate(points, params: FitParams, front=None, lattice: float = 0.0) -> BodyFit:
+def _estimate(points, params: FitParams, front=None, lattice: float = 0.0, behind=None) -> BodyFit:
     """`estimate_posture` on checked points, as they lie; ``front`` (3,): where the body faces, when
     known (None: read by the fit, `recon.posture.joints.front_sign`); ``lattice``: the volume's
-    lattice shifted by this fraction of a voxel (`recon.posture.volume.voxelize`'s ``offset``)."""
+    lattice shifted by this fraction of a voxel (`recon.posture.volume.voxelize`'s ``offset``);
+    ``behind``: positions behind every camera's seen surface, in these points' frame
+    (`recon.views.Views.behind`: the volume is enclosed between the views too)."""
     times = {}
     t0 = time.perf_counter()
     rng = np.random.default_rng(params.fit_seed)
@@ -378,7 +395,7 @@ def _estimate(points, params: FitParams, front=None, lattice: float = 0.0) -> Bo
     size = voxel_size(coarse, params.voxel_min, params.voxel_max, k=params.voxel_density_k,
                       quantile=params.voxel_density_quantile, factor=params.voxel_spacing_factor,
                       seed=params.fit_seed)
-    vol = voxelize(coarse, size, reach=params.voxel_reach, offset=lattice)
+    vol = voxelize(coarse, size, reach=params.voxel_reach, offset=lattice, behind=behind)
     scorer = Scorer(vol, params)
     times["voxelize"] = time.perf_counter() - t0
 

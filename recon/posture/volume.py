@@ -4,10 +4,15 @@ After Matsuoka et al. as the paper uses it: the voxel size comes from the point 
 sparsest part of the cloud (the `density_quantile` quantile of the distance from a point to its
 `density_k`-th nearest neighbour, times a factor), clamped to [`voxel_min`, `voxel_max`] so that gaps such as the one
 between arm and chest stay open. Contour voxels are the voxels holding points; inside voxels are the
-empty voxels enclosed by contour voxels: those that a 3-D hole fill finds after a one-voxel
-morphological closing (which bridges small holes of the scan), plus those that have contour voxels
-within `reach` in all four in-plane directions of at least two of the three axis planes through
-them (a torso whose sides are missing from a front/back scan is still enclosed that way). The volume may be
+empty voxels enclosed by contour voxels. Where the cameras' views of the cloud are known (its
+points' view directions), enclosed means what no camera looked through: behind the surface every
+camera saw (`recon.views.Views.behind`), the volume between the front and rear range images. A
+body turned in the scanner shows its trunk's sides only, its front and back lying along the lines
+of sight: no closing encloses gaps that wide, but the space behind both sides is known. Without
+the views: the empty voxels that a 3-D hole fill finds after a one-voxel morphological closing
+(which bridges small holes of the scan), plus those that have contour voxels within `reach` in
+all four in-plane directions of at least two of the three axis planes through them (a torso
+whose sides are missing from a front/back scan is still enclosed that way). The volume may be
 incomplete: it only guides the match.
 """
 
@@ -91,7 +96,7 @@ def voxel_size(points: np.ndarray, voxel_min: float, voxel_max: float, *, k: int
 
 
 def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes: int = 1, pad: int = 3,
-             offset: float = 0.0) -> Volume:
+             offset: float = 0.0, behind=None) -> Volume:
     """Contour and inside voxels of ``points`` (n, 3) metres at edge ``size`` metres.
 
     Parameters
@@ -106,6 +111,10 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
     offset : float
         The lattice shifted by this fraction of a voxel along every axis (the same points, another
         discretization: `recon.posture.fit.estimate_posture`'s ``fit_regrid``).
+    behind : callable, optional
+        ``behind(at (m, 3)) -> (m,) bool``: whether positions lie behind the surface every camera
+        saw (`recon.views.Views.behind`). Given, the inside voxels are those (the volume between
+        the views) and ``reach`` is not used.
     """
     from scipy import ndimage
 
@@ -116,18 +125,29 @@ def voxelize(points: np.ndarray, size: float, *, reach: float = 0.4, min_planes:
     idx = np.floor((points - lo) / size).astype(np.int64)
     contour = np.zeros(shape, dtype=bool)
     contour[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-    closed = ndimage.binary_closing(contour, structure=np.ones((3, 3, 3), bool), border_value=0)
-    filled = ndimage.binary_fill_holes(closed)
-    # where the shell has gaps (sides seen at grazing angles): a voxel is also inside when, in at
-    # least two of the three axis planes through it, contour voxels lie within `reach` in all four
-    # in-plane directions
-    steps = max(1, int(round(reach / size)))
-    blocked = [_blocked_both_ways(closed, ax, steps) for ax in range(3)]
-    planes = (blocked[0] & blocked[1]).astype(np.int8) + (blocked[0] & blocked[2]) + (blocked[1] & blocked[2])
-    filled |= planes >= min_planes
+    if behind is not None:
+        # what no camera looked through: behind the surface every camera saw
+        filled = np.zeros(int(np.prod(shape)), dtype=bool)
+        for a in range(0, filled.size, CHUNK):
+            at = np.column_stack(np.unravel_index(np.arange(a, min(a + CHUNK, filled.size)), shape))
+            filled[a:a + CHUNK] = behind(at * size + lo + 0.5 * size)
+        filled = filled.reshape(shape)
+    else:
+        closed = ndimage.binary_closing(contour, structure=np.ones((3, 3, 3), bool), border_value=0)
+        filled = ndimage.binary_fill_holes(closed)
+        # where the shell has gaps (sides seen at grazing angles): a voxel is also inside when, in at
+        # least two of the three axis planes through it, contour voxels lie within `reach` in all four
+        # in-plane directions
+        steps = max(1, int(round(reach / size)))
+        blocked = [_blocked_both_ways(closed, ax, steps) for ax in range(3)]
+        planes = (blocked[0] & blocked[1]).astype(np.int8) + (blocked[0] & blocked[2]) + (blocked[1] & blocked[2])
+        filled |= planes >= min_planes
     inside = filled & ~contour
     return Volume(origin=lo + 0.5 * size, size=float(size), contour=contour, inside=inside)
 
+
+#: Voxels whose centres `voxelize` hands to ``behind`` at once (bounds its memory).
+CHUNK = 1 << 18
 
 #: Peak bytes per voxel of `voxelize` and the volume match that follows (the inside test's
 #: int64 running maxima and minima along each axis dominate; measured, see `require_voxels`).
