@@ -24,15 +24,16 @@ GAP_Q = 95.0
 
 
 def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
-    """How one head saw: ``project(x) -> (uv (m, 2), depth (m,))``, image coordinates in metres
-    at the body and depth increasing toward the camera, or None when its rays neither are parallel
-    nor meet in a centre (within ``spacing``)."""
+    """How one head saw: ``(project, parallel)``, ``project(x) -> (uv (m, 2), depth (m,))`` its
+    image coordinates in metres at the body and depth increasing toward the camera, ``parallel``
+    whether its rays are parallel (else they meet in a centre); None when they do neither
+    (within ``spacing``)."""
     a = view_dir.mean(axis=0)
     a /= np.linalg.norm(a)
     e1 = perp(a)
     e2 = np.cross(a, e1)
     if np.abs(view_dir - a).max() < 1e-6:        # parallel projection
-        return lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)
+        return (lambda x: (np.column_stack([x @ e1, x @ e2]), x @ a)), True
     # perspective: the centre nearest to every ray (p + t v)
     P = np.eye(3)[None] - view_dir[:, :, None] * view_dir[:, None, :]
     c = np.linalg.lstsq(P.sum(axis=0), np.einsum("nij,nj->i", P, points), rcond=None)[0]
@@ -45,7 +46,7 @@ def _camera(points: np.ndarray, view_dir: np.ndarray, spacing: float):
         u = c - x
         ua = u @ a
         return dist * np.column_stack([u @ e1, u @ e2]) / ua[:, None], -np.linalg.norm(u, axis=1)
-    return project
+    return project, False
 
 
 class Views:
@@ -71,13 +72,16 @@ class Views:
             _, head = np.unique(np.round(view_dir, 6), axis=0, return_inverse=True)
             head = head.ravel() if head.max() < 16 else np.zeros(len(points), dtype=np.int64)
         self.spacing = float(spacing)
+        self.parallel = True   # every head's lines of sight parallel
         self.heads = []   # per head: project, origin (2,), shape, depth (raw), nearest of 3 x 3
         self._uv = []     # per head: its points' image coordinates (k, 2)
         for h in np.unique(head):
             sel = np.flatnonzero(head == h)
-            project = _camera(points[sel], view_dir[sel], spacing)
-            if project is None or len(sel) < 10:
+            camera = _camera(points[sel], view_dir[sel], spacing)
+            if camera is None or len(sel) < 10:
                 continue
+            project, parallel = camera
+            self.parallel &= parallel
             uv, depth = project(points[sel])
             o = uv.min(axis=0) - spacing
             ij = np.floor((uv - o) / spacing).astype(np.int64)
@@ -125,7 +129,10 @@ class Views:
         """(m,) bool: whether each position ``at`` (m, 3) lies behind the surface every head saw
         along its line of sight (the nearest seen point of its pixel and the eight around it): the
         volume between the views, which no camera looked through. False where a head saw nothing
-        there, and everywhere when no head is known."""
+        there, and everywhere when no head is known. With heads of parallel lines of sight
+        (`parallel`) facing each other, it is the body's extent along each line. Perspective heads'
+        lines diverge, and the space their shadows share beyond the body (below the soles, above
+        the shoulders of a body seen from below) is behind both: there it is a loose bound."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), bool(self.heads))
         for i, head in enumerate(self.heads):

@@ -5,11 +5,11 @@ sparsest part of the cloud (the `density_quantile` quantile of the distance from
 `density_k`-th nearest neighbour, times a factor), clamped to [`voxel_min`, `voxel_max`] so that gaps such as the one
 between arm and chest stay open. Contour voxels are the voxels holding points; inside voxels are the
 empty voxels enclosed by contour voxels. Where the cameras' views of the cloud are known (its
-points' view directions), enclosed means what no camera looked through: behind the surface every
-camera saw (`recon.views.Views.behind`), the volume between the front and rear range images. A
-body turned in the scanner shows its trunk's sides only, its front and back lying along the lines
-of sight: no closing encloses gaps that wide, but the space behind both sides is known. Without
-the views: the empty voxels that a 3-D hole fill finds after a one-voxel morphological closing
+points' view directions, heads of parallel lines of sight), enclosed means what no camera looked
+through: behind the surface every camera saw (`recon.views.Views.behind`), the volume between the
+front and rear range images. A body turned in the scanner shows its trunk's sides only, its
+front and back lying along the lines of sight: no closing encloses gaps that wide, but the space
+behind both sides is known. Without such views: the empty voxels that a 3-D hole fill finds after a one-voxel morphological closing
 (which bridges small holes of the scan), plus those that have contour voxels within `reach` in
 all four in-plane directions of at least two of the three axis planes through them (a torso
 whose sides are missing from a front/back scan is still enclosed that way). The volume may be
