@@ -384,8 +384,8 @@ def _estimate(points, params: FitParams, front=None, lattice: float = 0.0, behin
     """`estimate_posture` on checked points, as they lie; ``front`` (3,): where the body faces, when
     known (None: read by the fit, `recon.posture.joints.front_sign`); ``lattice``: the volume's
     lattice shifted by this fraction of a voxel (`recon.posture.volume.voxelize`'s ``offset``);
-    ``behind``: positions behind every camera's seen surface, in these points' frame
-    (`recon.views.Views.behind`: the volume is enclosed between the views too)."""
+    ``behind``: whether positions lie behind every camera's seen surface, in these points' frame
+    (`recon.views.Views.behind`; given, the volume is enclosed between the views)."""
     times = {}
     t0 = time.perf_counter()
     rng = np.random.default_rng(params.fit_seed)

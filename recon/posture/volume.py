@@ -9,10 +9,11 @@ points' view directions, heads of parallel lines of sight), enclosed means what 
 through: behind the surface every camera saw (`recon.views.Views.behind`), the volume between the
 front and rear range images. A body turned in the scanner shows its trunk's sides only, its
 front and back lying along the lines of sight: no closing encloses gaps that wide, but the space
-behind both sides is known. Without such views: the empty voxels that a 3-D hole fill finds after a one-voxel morphological closing
-(which bridges small holes of the scan), plus those that have contour voxels within `reach` in
-all four in-plane directions of at least two of the three axis planes through them (a torso
-whose sides are missing from a front/back scan is still enclosed that way). The volume may be
+behind both sides is known. Without such views, the inside voxels are the empty voxels that a 3-D
+hole fill finds after a one-voxel morphological closing (which bridges small holes of the scan),
+plus those that have contour voxels within `reach` in all four in-plane directions of at least two
+of the three axis planes through them (a torso whose sides are missing from a front/back scan is
+still enclosed that way). The volume may be
 incomplete: it only guides the match.
 """
 
