@@ -116,14 +116,21 @@ class Views:
         around it (unknown; beside the silhouettes: `beside`). ``projected``: `project` of ``at``."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), -np.inf)
-        for i, head in enumerate(self.heads):
-            near = head[4]
-            k, dx, ok = self.pixels(i, at, None if projected is None else projected[i])
-            a = np.full(len(at), -np.inf)
-            zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
-            a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, -np.inf)
-            out = np.maximum(out, a)
+        for i in range(len(self.heads)):
+            a = self._ahead(i, at, None if projected is None else projected[i])
+            out = np.maximum(out, np.where(np.isnan(a), -np.inf, a))
         return out
+
+    def _ahead(self, i: int, at: np.ndarray, projected=None) -> np.ndarray:
+        """(m,) how far (metres) each position ``at`` (m, 3) lies in front of the surface head ``i``
+        saw (the nearest seen point of its pixel and the eight around it); NaN where that head saw
+        nothing there or outside its picture. ``projected``: head ``i``'s `project` of ``at``."""
+        near = self.heads[i][4]
+        k, dx, ok = self.pixels(i, at, projected)
+        a = np.full(len(at), np.nan)
+        zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
+        a[ok] = np.where(np.isfinite(zk), dx[ok] - zk, np.nan)
+        return a
 
     def behind(self, at: np.ndarray) -> np.ndarray:
         """(m,) bool: whether each position ``at`` (m, 3) lies behind the surface every head saw
@@ -135,13 +142,8 @@ class Views:
         the shoulders of a body seen from below) is behind both: there it is a loose bound."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out = np.full(len(at), bool(self.heads))
-        for i, head in enumerate(self.heads):
-            near = head[4]
-            k, dx, ok = self.pixels(i, at)
-            b = np.zeros(len(at), dtype=bool)
-            zk = near.take(k[ok, 0] * near.shape[1] + k[ok, 1])
-            b[ok] = np.isfinite(zk) & (dx[ok] <= zk)
-            out &= b
+        for i in range(len(self.heads)):
+            out &= self._ahead(i, at) <= 0      # NaN (unseen) compares False
         return out
 
     #: Margin of `beside`'s images around the points, pixels.

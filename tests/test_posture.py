@@ -961,6 +961,15 @@ def test_the_shifted_lattice_discretizes_the_same_points_half_a_voxel_off():
     assert b.contour[3, 3, 3] and b.contour[4, 3, 3]
 
 
+def _elliptic_column(a, b, z, n_theta):
+    """The side of an upright elliptic column, semi-axes ``a`` along x and ``b`` along y, sampled at
+    ``n_theta`` angles on each height of ``z`` (k,): points (n_theta * k, 3) and unit outward normals."""
+    t, zz = np.meshgrid(np.linspace(0, 2 * np.pi, n_theta, endpoint=False), z)
+    P = np.column_stack([a * np.cos(t.ravel()), b * np.sin(t.ravel()), zz.ravel()])
+    N = np.column_stack([np.cos(t.ravel()) / a, np.sin(t.ravel()) / b, np.zeros(t.size)])
+    return P, N / np.linalg.norm(N, axis=1, keepdims=True)
+
+
 def test_a_column_seen_only_at_its_ends_is_filled_between_the_views():
     """`voxelize`'s ``behind`` (`recon.views.Views.behind`): an elliptic column 0.32 m deep along
     the cameras' axis and 0.2 m wide, seen by the front and rear cameras only on its two ends
@@ -973,10 +982,7 @@ def test_a_column_seen_only_at_its_ends_is_filled_between_the_views():
     from views import front_rear_zbuffer
 
     a, b, height, size = 0.10, 0.16, 0.6, 0.025                  # semi-axes along x and y (the view)
-    t, z = np.meshgrid(np.linspace(0, 2 * np.pi, 600, endpoint=False), np.linspace(0, height, 121))
-    P = np.column_stack([a * np.cos(t.ravel()), b * np.sin(t.ravel()), z.ravel()])
-    N = np.column_stack([np.cos(t.ravel()) / a, np.sin(t.ravel()) / b, np.zeros(t.size)])
-    N /= np.linalg.norm(N, axis=1, keepdims=True)
+    P, N = _elliptic_column(a, b, np.linspace(0, height, 121), 600)
     ends = np.abs(N[:, 1]) > 0.5
     keep, vd = front_rear_zbuffer(P[ends], N[ends], 0.01)
     pts, vd = P[ends][keep], vd[keep]
@@ -1008,9 +1014,7 @@ def test_perspective_views_leave_a_shared_shadow_behind_both_so_the_fit_keeps_th
     from bodyscan.recon.posture.volume import voxelize
 
     a, b, bottom, top, size = 0.15, 0.10, 0.2, 1.0, 0.025
-    t, z = np.meshgrid(np.linspace(0, 2 * np.pi, 300, endpoint=False), np.arange(bottom, top, 0.005))
-    P = np.column_stack([a * np.cos(t.ravel()), b * np.sin(t.ravel()), z.ravel()])
-    N = np.column_stack([np.cos(t.ravel()) / a, np.sin(t.ravel()) / b, np.zeros(t.size)])
+    P, N = _elliptic_column(a, b, np.arange(bottom, top, 0.005), 300)
     gx, gy = np.meshgrid(np.arange(-a, a, 0.005), np.arange(-b, b, 0.005))
     cap = (gx / a) ** 2 + (gy / b) ** 2 < 1
     P = np.vstack([P, np.column_stack([gx[cap], gy[cap], np.full(cap.sum(), top)])])
