@@ -3,9 +3,11 @@
 Usage::
 
     python -m bodyscan.benchmarks.fit_table [--resolution 0.01] [--bodies a,b|DIR] [--conditions k1,k1_rot137,k2,k3]
+                                   [--preset paper|scanner] [--no-views]
                                    [--param NAME=VALUE ...] [--json ROWS.json] [--jobs N]
 
-Scans every body with the `paper` preset at ``--resolution`` metres, for each condition (``k1``:
+Scans every body with the `paper` preset (``--preset scanner``: perspective heads and 1 mm range
+noise) at ``--resolution`` metres, for each condition (``k1``:
 k = 1; ``k1_rot137``: the k = 1 scan turned 137 degrees about the vertical, ground truth turned
 with it (the fit reads the facing from the cloud's shape, so this repeats ``k1`` turned: a check
 that it does); ``k1_turn137``: the body turned 137 degrees in the scanner before the scan (the
@@ -16,7 +18,8 @@ partial body, the points of those sections cut from the scan, which the fit must
 drawn scanner conditions, k, turn, resolution and noise, for bodies of a corpus from
 `bodyscan poses sample`),
 fits it as `bodyscan fit` does (`recon.pipeline.estimate_fit`: outliers left out, then
-`recon.estimate_posture`) and prints one row per run: median and largest joint error
+`recon.estimate_posture`; ``--no-views``: without the points' view directions and heads, as a
+bare point file is fitted) and prints one row per run: median and largest joint error
 (metres, over the joints the fit gives), the worst limb section's angle to its true bone (degrees,
 over the fitted limb sections), the sections listed unfitted (``*``: the scan shows it), the outcome
 and the seconds the fit took. Outcomes:
@@ -154,10 +157,13 @@ def outcome(err: dict, ang: dict, unfitted, seen: dict | None = None) -> str:
     return "fail" if med <= 0.10 and max(err.values()) <= 0.30 else "WRONG"
 
 
-def run_one(body, condition: str, resolution: float, params=None, clean: bool = True) -> dict:
-    """Scan ``body`` under ``condition``, fit, score: a table row (dict). ``clean``: fit as
-    `bodyscan fit` and `reconstruct` do (`recon.pipeline.estimate_fit`: outliers left out first);
-    False: `recon.estimate_posture` on the scan as it is (a test of a fit rule on a given cloud)."""
+def run_one(body, condition: str, resolution: float, params=None, clean: bool = True, *,
+            preset: str = "paper", views: bool = True) -> dict:
+    """Scan ``body`` under ``condition`` with the scanner ``preset`` at ``resolution``, fit, score:
+    a table row (dict). ``clean``: fit as `bodyscan fit` and `reconstruct` do
+    (`recon.pipeline.estimate_fit`: outliers left out first); False: `recon.estimate_posture` on the
+    scan as it is (a test of a fit rule on a given cloud). ``views`` False: the fit is not given the
+    points' view directions and heads (a bare point file)."""
     from bodyscan import simulator
     from bodyscan.recon import ReconError, ReconParams, estimate_posture
     from bodyscan.recon.pipeline import estimate_fit
@@ -170,13 +176,15 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
         body = turned_body(body, c["turn_deg"])
     else:
         k = int(condition.split("_")[0][1:])
-        noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else 0.0
+        noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else None
     if "turn" in condition:
         deg = condition.split("turn")[1].split("_")[0]
         body = turned_body(body, float(deg) if deg else drawn_conditions(body)["turn_deg"])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        scan = simulator.scan(body, simulator.preset("paper", resolution=resolution, k=k, noise_sigma=noise))
+        # the preset's own noise unless the condition names one
+        noise = {} if noise is None else dict(noise_sigma=noise)
+        scan = simulator.scan(body, simulator.preset(preset, resolution=resolution, k=k, **noise))
     # the view directions and heads, as `reconstruct` gets them
     pts, gt, vd, hd = scan.points, scan.gt_section, scan.view_dir, scan.head
     outside = float(scan.meta.get("outside_field", 0.0))
@@ -194,12 +202,14 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
         joints = {n: R @ v for n, v in joints.items()}
     row = dict(body=body.name if hasattr(body, "name") else "?", condition=condition, points=len(pts),
                outside_field=outside)
+    if not views:
+        vd = hd = None
     t0 = time.perf_counter()
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fit = estimate_fit(pts, recon, view_dir=vd, head=hd) if clean else \
-                estimate_posture(pts, params, view_dir=vd)
+                estimate_posture(pts, params, view_dir=vd, head=hd)
     except ReconError as e:
         row.update(seconds=time.perf_counter() - t0, outcome="refused", message=str(e))
         return row
@@ -215,12 +225,14 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
     return row
 
 
-def run_body(name: str, conditions: list, resolution: float, params=None) -> list:
+def run_body(name: str, conditions: list, resolution: float, params=None, preset: str = "paper",
+             views: bool = True) -> list:
     """`run_one` for every condition of the body ``name`` (a library name or body file): its rows."""
     from bodyscan.poses import load_body
 
     body = load_body(name)
-    return [{**run_one(body, c, resolution, params), "body": body.name} for c in conditions]
+    return [{**run_one(body, c, resolution, params, preset=preset, views=views), "body": body.name}
+            for c in conditions]
 
 
 def rates(rows: list) -> str:
@@ -263,6 +275,12 @@ def main(argv=None) -> int:
                          "before the scan), kK_without-SECTION+SECTION (those sections cut from the scan), "
                          "any of them + _noiseMM "
                          "(default k1,k1_rot137,k2,k3)")
+    ap.add_argument("--preset", default="paper",
+                    help="the scanner: paper (parallel heads, no noise) or scanner (perspective heads, "
+                         "1 mm range noise; a condition's _noiseMM overrides the noise) (default paper)")
+    ap.add_argument("--no-views", dest="views", action="store_false",
+                    help="fit without the points' view directions and heads, as a bare point file "
+                         "(the fit then encloses its volume from the points' contours alone)")
     ap.add_argument("--param", action="append", default=[], help="FitParams NAME=VALUE (repeatable)")
     ap.add_argument("--json", help="also write the rows to this JSON file (each with its per-joint "
                                    "errors, metres)")
@@ -276,6 +294,10 @@ def main(argv=None) -> int:
 
     from bodyscan.poses import expand_bodies
     from bodyscan.recon import FitParams, ReconError
+    from bodyscan.simulator.config import PRESETS
+
+    if a.preset not in PRESETS:
+        ap.error(f"--preset {a.preset!r}: use one of {', '.join(PRESETS)}")
 
     try:
         params = FitParams.from_strings(a.param)
@@ -283,11 +305,13 @@ def main(argv=None) -> int:
         ap.error(str(e))
     names = expand_bodies(b for b in a.bodies.split(",") if b)
     conds = [c for c in a.conditions.split(",") if c]
-    print(f"resolution {a.resolution} m; median/max joint error cm; worst limb angle deg")
+    print(f"preset {a.preset}, resolution {a.resolution} m" + ("" if a.views else ", fitted without view directions")
+          + "; median/max joint error cm; worst limb angle deg")
     print(f"{'body':<22} {'condition':<10} {'median':>6} {'max':>6} {'worst joint':<12} {'angle':>5}  "
           f"{'unfitted':<28} {'outcome':<7} {'s':>5}")
     done = {}
-    for name, some in each_done(run_body, names, conds, a.resolution, params, jobs=a.jobs):
+    for name, some in each_done(run_body, names, conds, a.resolution, params, a.preset, a.views,
+                                jobs=a.jobs):
         done[name] = some
         for r in some:
             print(format_row(r), flush=True)

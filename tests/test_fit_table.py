@@ -44,7 +44,7 @@ def test_summary_gives_the_rates_in_the_field_apart(monkeypatch, capsys):
     rows = {"tall": _row("tall", "fail", silent=True, outside=0.01), "short": _row("short", "pass")}
     monkeypatch.setattr("bodyscan.poses.expand_bodies", lambda names: list(names))
     monkeypatch.setattr("bodyscan.poses.load_body", lambda name: dataclasses.make_dataclass("B", ["name"])(name))
-    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params: dict(rows[body.name]))
+    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params, **kw: dict(rows[body.name]))
     assert fit_table.main(["--bodies", "tall,short", "--conditions", "k1"]) == 0
     out = capsys.readouterr().out
     assert "RATES targets met 1/2 = 0.500" in out
@@ -72,7 +72,7 @@ def test_summary_gives_the_rates_per_condition(monkeypatch, capsys):
             ("a", "k1_turn90"): _row("a", "refused"), ("b", "k1_turn90"): _row("b", "fail", silent=True)}
     monkeypatch.setattr("bodyscan.poses.expand_bodies", lambda names: list(names))
     monkeypatch.setattr("bodyscan.poses.load_body", lambda name: dataclasses.make_dataclass("B", ["name"])(name))
-    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params: {**rows[body.name, c], "condition": c})
+    monkeypatch.setattr(fit_table, "run_one", lambda body, c, res, params, **kw: {**rows[body.name, c], "condition": c})
     assert fit_table.main(["--bodies", "a,b", "--conditions", "k1,k1_turn90"]) == 0
     out = capsys.readouterr().out
     assert "RATES targets met 2/4 = 0.500" in out
@@ -99,6 +99,45 @@ def test_jobs_give_the_same_rows(tmp_path):
     assert [r["body"] for r in rows[0]] == ["standing", "squat"]
     fitted = [r for r in rows[0] if r["outcome"] != "refused"]
     assert fitted and all(max(r["errors"].values()) == pytest.approx(r["max"]) for r in fitted)
+
+
+def test_the_preset_and_the_views_reach_the_scan_and_the_fit(monkeypatch):
+    # the fit is handed what the named scanner saw: the `scanner` preset's perspective heads (view
+    # directions that differ within a head) and its 1 mm range noise (points off the true surface);
+    # without views, neither view directions nor heads
+    import trimesh
+
+    from bodyscan.poses import load_body
+    from bodyscan.recon import ReconError
+
+    seen = {}
+
+    def fit(points, params, view_dir=None, head=None):
+        seen.update(points=points, view_dir=view_dir, head=head)
+        raise ReconError("recorded")
+
+    monkeypatch.setattr("bodyscan.recon.pipeline.estimate_fit", fit)
+    body = load_body("standing")
+    mesh = trimesh.Trimesh(body.vertices, body.faces, process=False)
+    off = {}
+    for preset in ("paper", "scanner"):
+        assert fit_table.run_one(body, "k1", 0.02, preset=preset)["outcome"] == "refused"
+        front = seen["head"] == seen["head"][0]
+        spread = np.ptp(seen["view_dir"][front], axis=0).max()
+        off[preset] = np.median(np.abs(trimesh.proximity.signed_distance(mesh, seen["points"][::20])))
+        assert (spread > 0.1) == (preset == "scanner")
+    assert off["paper"] < 1e-4 and 4e-4 < off["scanner"] < 1.2e-3      # 1 mm sigma: median |e| .67 mm
+    fit_table.run_one(body, "k1_noise0", 0.02, preset="scanner")
+    assert np.median(np.abs(trimesh.proximity.signed_distance(mesh, seen["points"][::20]))) < 1e-4
+    fit_table.run_one(body, "k1", 0.02, views=False)
+    assert seen["view_dir"] is None and seen["head"] is None
+
+
+def test_an_unknown_preset_is_a_usage_error(capsys):
+    with pytest.raises(SystemExit) as e:
+        fit_table.main(["--bodies", "standing", "--preset", "scaner"])
+    err = capsys.readouterr().err
+    assert e.value.code == 2 and "use one of paper, scanner" in err and "Traceback" not in err
 
 
 def test_jobs_below_one_is_a_usage_error(capsys):
