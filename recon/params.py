@@ -582,7 +582,7 @@ class FitParams:
     voxel_reach: float = field(default=0.3,  # 2.2: inside test: enclosing contours within this, m (chosen)
         metadata={"help": "inside test (without view directions, or voxel_views off): enclosing contour voxels within this", "unit": "m", "range": (0, 2)})
     voxel_views: bool = field(default=True,  # 2.2: inside = behind every camera's seen surface (ours; chosen)
-        metadata={"help": "given parallel heads' view directions, inside voxels are those behind what every camera saw "
+        metadata={"help": "given the points' view directions, inside voxels are those behind what every camera saw "
                           "(off: what the contours enclose)", "unit": "", "range": None})
     contour_weight: float = field(default=2.0,  # 2.3(1), 4.2: weight n of contour voxels, n = 2
         metadata={"help": "weight n of contour voxels in the match (paper: 2)", "unit": "", "range": (-100, 100)})

@@ -133,18 +133,22 @@ class Views:
         return a
 
     def behind(self, at: np.ndarray) -> np.ndarray:
-        """(m,) bool: whether each position ``at`` (m, 3) lies behind the surface every head saw
-        along its line of sight (the nearest seen point of its pixel and the eight around it): the
-        volume between the views, which no camera looked through. False where a head saw nothing
-        there, and everywhere when no head is known. With heads of parallel lines of sight
-        (`parallel`) facing each other, it is the body's extent along each line. Perspective heads'
-        lines diverge, and the space their shadows share beyond the body (below the soles, above
-        the shoulders of a body seen from below) is behind both: there it is a loose bound."""
+        """(m,) bool: whether each position ``at`` (m, 3) lies behind the surface every head whose
+        picture holds it saw along its line of sight (the nearest seen point of its pixel and the
+        eight around it), and at least two heads' pictures hold it: the volume between the views,
+        which no camera looked through. False where such a head saw nothing there. A head whose
+        picture (the extent of what it saw) does not reach the position has no say (a tower's
+        upper head, the legs), and one head alone bounds a line on its own side only. With heads
+        of parallel lines of sight (`parallel`) facing each other, it is the body's extent along
+        each line. Perspective heads' lines diverge, and the space their shadows share beyond the
+        body (below the soles, under a raised thigh) is behind both: there it is a loose bound."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
-        out = np.full(len(at), bool(self.heads))
+        out, said = np.ones(len(at), dtype=bool), np.zeros(len(at), dtype=np.int64)
         for i in range(len(self.heads)):
-            out &= self._ahead(i, at) <= 0      # NaN (unseen) compares False
-        return out
+            ok = self.pixels(i, at)[2]
+            out &= ~ok | (self._ahead(i, at) <= 0)      # NaN (saw nothing) compares False
+            said += ok
+        return out & (said >= 2)
 
     #: Margin of `beside`'s images around the points, pixels.
     PAD = 4

@@ -1002,13 +1002,49 @@ def test_a_column_seen_only_at_its_ends_is_filled_between_the_views():
     assert filled > 0.98 and outside == 0, (filled, outside)
 
 
-def test_perspective_views_leave_a_shared_shadow_behind_both_so_the_fit_keeps_the_contours(monkeypatch):
+def test_heads_of_a_tower_each_say_only_where_their_picture_reaches():
+    """Two towers (`simulator.head_layout`'s ``two_towers``): an upper and a lower head in front,
+    the same behind, the upper ones seeing an elliptic column 0.1-1.9 m high above 0.9 m, the
+    lower ones below 1.3 m. A voxel is inside when it lies behind what every head whose picture
+    reaches it saw: the whole column, not only the band all four heads see, and nothing beside
+    it. On the library's standing body scanned so (parallel heads, 10 mm), the fit meets issue 4's
+    targets (with every head required, its volume held the band alone: a joint 28 cm off)."""
+    from bodyscan import poses, simulator
+    from bodyscan.recon.posture.seen import scan_views
+    from bodyscan.recon.posture.volume import voxelize
+    from bodyscan.simulator.config import head_layout
+
+    a, b, size = 0.15, 0.10, 0.025
+    P, N = _elliptic_column(a, b, np.arange(0.1, 1.9, 0.005), 300)
+    pts, vd, head = [], [], []
+    for h, (side, lo, hi) in enumerate([(-1, 0.9, 2.0), (-1, 0.0, 1.3), (1, 0.9, 2.0), (1, 0.0, 1.3)]):
+        seen = (N[:, 1] * side > 0) & (P[:, 2] >= lo) & (P[:, 2] <= hi)
+        pts.append(P[seen])
+        vd.append(np.tile([0.0, side, 0.0], (seen.sum(), 1)))
+        head.append(np.full(seen.sum(), h))
+    vol = voxelize(np.vstack(pts), size, behind=scan_views(np.vstack(pts), np.vstack(vd), np.concatenate(head)).behind)
+    c = vol.centres(np.ones(vol.shape, bool)).reshape(vol.shape + (3,))
+    r = (c[..., 0] / a) ** 2 + (c[..., 1] / b) ** 2
+    deep = (r < 0.6) & (c[..., 2] > 0.1 + 2 * size) & (c[..., 2] < 1.9 - 2 * size)
+    assert vol.inside[deep].mean() > 0.98 and not vol.inside[r > 1.5].any()
+
+    assert "standing" in _library(), "library postures missing"
+    body = poses.load_body("standing")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scan = simulator.scan(body, simulator.preset("paper", resolution=0.01, heads=head_layout("two_towers")))
+        fit = estimate_posture(scan.points, view_dir=scan.view_dir, head=scan.head)
+    err = [np.linalg.norm(fit.joints[n] - p) for n, p in body.joint_dict().items()]
+    assert not fit.unfitted and np.median(err) <= 0.04 and max(err) <= 0.10, (np.median(err), max(err))
+
+
+def test_perspective_views_leave_a_shared_shadow_behind_both_and_enclose_the_volume(monkeypatch):
     """Perspective heads 2 m in front of and behind an elliptic column standing 0.2-1.0 m high,
     their centres at 1.1 m: every line of sight through the space under the column passes through
     the column first, so that space lies behind the surface both heads saw (the soles of a body
-    scanned from above them), and `Views.behind` holds it. The fit encloses its volume between
-    the views only for heads of parallel lines of sight (`Views.parallel`), as the front and rear
-    views of a column seen by parallel heads are."""
+    scanned from above them), and `Views.behind` holds it: a loose bound there. The column's
+    inside is held as well as by parallel heads, which hold nothing under it. The fit encloses its
+    volume between the views of either."""
     from bodyscan.recon.posture import fit as F
     from bodyscan.recon.posture.seen import scan_views
     from bodyscan.recon.posture.volume import voxelize
@@ -1027,12 +1063,15 @@ def test_perspective_views_leave_a_shared_shadow_behind_both_so_the_fit_keeps_th
             pts.append(P[seen])
             vd.append(to[seen] / np.linalg.norm(to[seen], axis=1, keepdims=True))
             head.append(np.full(seen.sum(), h))
-        views = scan_views(np.vstack(pts), np.vstack(vd), np.concatenate(head))
-        vol = voxelize(np.vstack(pts), size, behind=views.behind)
+        pts, vd, head = np.vstack(pts), np.vstack(vd), np.concatenate(head)
+        views = scan_views(pts, vd, head)
+        assert views.parallel is not perspective
+        vol = voxelize(pts, size, behind=views.behind)
         c = vol.centres(np.ones(vol.shape, bool)).reshape(vol.shape + (3,))
         below = c[..., 2] < bottom - size
-        assert views.parallel is not perspective
+        deep = ((c[..., 0] / a) ** 2 + (c[..., 1] / b) ** 2 < 0.8) & (np.abs(c[..., 2] - 0.6) < 0.35)
         assert bool(vol.inside[below].any()) is perspective
+        assert vol.inside[deep].mean() > 0.9
         given = []     # what the fit hands the volume
 
         def voxelize_stop(*args, behind=None, **kwargs):
@@ -1041,8 +1080,11 @@ def test_perspective_views_leave_a_shared_shadow_behind_both_so_the_fit_keeps_th
 
         monkeypatch.setattr(F, "voxelize", voxelize_stop)
         with pytest.raises(ReconError, match="stop"):
-            F.estimate_posture(np.vstack(pts), view_dir=np.vstack(vd), head=np.concatenate(head))
-        assert given and all((g is None) is perspective for g in given)
+            F.estimate_posture(pts, view_dir=vd, head=head, params=FitParams(fit_facing=0, fit_regrid=0))
+        # the points as they lie (no facing turn): the fit's views' own test
+        at = c[deep | below]
+        assert len(given) == 1 and given[0] is not None
+        assert np.array_equal(given[0](at), F._views(pts, vd, head, FitParams()).behind(at))
         monkeypatch.undo()
 
 
@@ -1505,9 +1547,9 @@ def _articulated_body(rng, stature=1.75):
     return mesh, {k: v + lift for k, v in J.items()}
 
 
-def _limb_targets_met(seed: int, turn: float = 0.0) -> bool:
+def _limb_targets_met(seed: int, turn: float = 0.0, preset: str = "paper") -> bool:
     """Whether the fit of `_articulated_body` of ``seed``, turned ``turn`` degrees about the
-    vertical in the scanner (`paper` preset, 10 mm, k = 1), meets issue 4's targets on the limb
+    vertical in the scanner (``preset``, 10 mm, k = 1, no noise), meets issue 4's targets on the limb
     joints (median at most 4 cm, none over 10 cm, at least 10 of the 12 given). The trunk's joints
     follow the rig's anatomy (the pelvis above the crotch, the spine behind the torso's axis),
     which a body of columns does not have: they are left out."""
@@ -1519,7 +1561,7 @@ def _limb_targets_met(seed: int, turn: float = 0.0) -> bool:
     mesh.vertices = mesh.vertices @ R.T
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        scan = simulator.scan(mesh, simulator.preset("paper", resolution=0.01, k=1))
+        scan = simulator.scan(mesh, simulator.preset(preset, resolution=0.01, k=1, noise_sigma=0.0))
         try:
             fit = estimate_posture(scan.points, view_dir=scan.view_dir, head=scan.head)
         except ReconError:
@@ -1543,4 +1585,13 @@ def test_the_fit_recovers_the_limb_joints_of_articulated_bodies_turned_in_the_sc
     between the views (`voxelize`'s ``behind``), so at least 8 of 16 meet the targets (11 where
     this was written; 2 when the volume was enclosed by the closing and the in-plane test alone)."""
     met = [_limb_targets_met(seed, 90.0) for seed in range(16)]
+    assert sum(met) >= 8, met
+
+
+def test_the_fit_recovers_the_limb_joints_of_turned_articulated_bodies_seen_in_perspective():
+    """The same 16 turned bodies seen by the `scanner` preset's perspective heads, from 2 m at
+    1.1 m high: the volume is enclosed between their views (their shared shadows beyond the body
+    in), so at least 8 of 16 meet the targets (12 where this was written; 2 on the volume the
+    contours enclose)."""
+    met = [_limb_targets_met(seed, 90.0, "scanner") for seed in range(16)]
     assert sum(met) >= 8, met

@@ -16,13 +16,13 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    [`voxel_min`, `voxel_max`]. The volume and the coarse match (steps 2-4) use at most
    `match_max_points` of the points, the fine adjustment (step 5) up to `fit_max_points`: a scan
    finer than 10 mm is matched on a coarser volume, then adjusted on its own points (coarse to fine:
-   the match's cost no longer grows with the scan's density). Given the points' view directions
-   from heads of parallel lines of sight, the inside voxels are those behind the surface every
-   camera saw (`voxel_views`, not in the paper, whose volume holds what the contours enclose): a
-   body turned in the scanner shows the cameras its trunk's sides, its front and back along the
-   lines of sight, and gaps that wide in the contours enclose nothing. Perspective heads' lines
-   diverge, and behind both views lies also the space their shadows share beyond the body (below
-   the soles, above the shoulders): there the contours' enclosure stays.
+   the match's cost no longer grows with the scan's density). Given the points' view directions,
+   the inside voxels are those behind the surface every camera saw (`voxel_views`, not in the
+   paper, whose volume holds what the contours enclose): a body turned in the scanner shows the
+   cameras its trunk's sides, its front and back along the lines of sight, and gaps that wide in
+   the contours enclose nothing. Perspective heads' lines diverge, and behind both views lies also
+   the space their shadows share beyond the body (below the soles, under a raised thigh): a loose
+   bound there, which did not cost the fit (docs/tuning.md, `voxel_views`).
 2. Torso (one elliptic column covering chest and waist), 6 degrees of freedom: the paper aligns the
    model's centre of gravity with the cloud's and fits the torso to the volume, contour voxels
    weighted n. To work for any posture we start from the centre of the thickest part of the volume
@@ -299,9 +299,9 @@ def estimate_posture(points, params: FitParams | None = None, *, view_dir=None, 
 def _fit_checked(points, params: FitParams, views, lattice: float) -> BodyFit:
     """The fit on the volume whose lattice is shifted by ``lattice`` voxels, checked against the
     cameras' view ``views`` (`_views`; None: not known) by `_check_seen`; `ReconError` when
-    refused. With views of parallel lines of sight, the volume is enclosed between them
-    (`voxel_views`); perspective heads' views leave their shared shadows in (`Views.behind`)."""
-    behind = views.behind if views is not None and views.parallel and params.voxel_views else None
+    refused. The volume is enclosed between the views (`voxel_views`; perspective heads' views
+    leave their shared shadows in, `Views.behind`)."""
+    behind = views.behind if views is not None and params.voxel_views else None
     fit = _fit_facings(points, params, lattice, behind) if params.fit_facing else \
         _estimate(points, params, lattice=lattice, behind=behind)
     if views is not None and params.fit_min_agreement > 0:

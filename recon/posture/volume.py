@@ -5,7 +5,7 @@ sparsest part of the cloud (the `density_quantile` quantile of the distance from
 `density_k`-th nearest neighbour, times a factor), clamped to [`voxel_min`, `voxel_max`] so that gaps such as the one
 between arm and chest stay open. Contour voxels are the voxels holding points; inside voxels are the
 empty voxels enclosed by contour voxels. Where the cameras' views of the cloud are known (its
-points' view directions, heads of parallel lines of sight), enclosed means what no camera looked
+points' view directions), enclosed means what no camera looked
 through: behind the surface every camera saw (`recon.views.Views.behind`), the volume between the
 front and rear range images. A body turned in the scanner shows its trunk's sides only, its
 front and back lying along the lines of sight: no closing encloses gaps that wide, but the space
