@@ -643,7 +643,7 @@ class FitParams:
                                            # (chosen)
     match_resize_tolerance: float = field(default=0.06,  # 2.1: re-match only when the limbs measure off by more (chosen)
         metadata={"help": "re-match only when the limbs measure off by more than this ratio", "unit": "", "range": (0, 10)})
-    match_min_anchor_shift: float = field(default=0.05,  # 2.3(1): slide the torso to hang from the crown when it is off
+    match_min_anchor_shift: float = field(default=0.08,  # 2.3(1): slide the torso to hang from the crown when it is off
         metadata={"help": "slide the torso to hang from the crown when it is off by more than this", "unit": "m", "range": (0, 2)})
     match_max_anchor_shift: float = field(default=0.15,  #   by more than this, and at most this far, m (chosen)
         metadata={"help": "the torso slides at most this far to hang from the crown", "unit": "m", "range": (0, 2)})
