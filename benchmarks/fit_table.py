@@ -183,8 +183,8 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # the preset's own noise unless the condition names one
-        noise = {} if noise is None else dict(noise_sigma=noise)
-        scan = simulator.scan(body, simulator.preset(preset, resolution=resolution, k=k, **noise))
+        changes = dict(resolution=resolution, k=k) | ({} if noise is None else dict(noise_sigma=noise))
+        scan = simulator.scan(body, simulator.preset(preset, **changes))
     # the view directions and heads, as `reconstruct` gets them
     pts, gt, vd, hd = scan.points, scan.gt_section, scan.view_dir, scan.head
     outside = float(scan.meta.get("outside_field", 0.0))

@@ -144,9 +144,10 @@ class Views:
         body (below the soles, under a raised thigh) is behind both: there it is a loose bound."""
         at = np.asarray(at, dtype=np.float64).reshape(-1, 3)
         out, said = np.ones(len(at), dtype=bool), np.zeros(len(at), dtype=np.int64)
-        for i in range(len(self.heads)):
-            ok = self.pixels(i, at)[2]
-            out &= ~ok | (self._ahead(i, at) <= 0)      # NaN (saw nothing) compares False
+        for i, head in enumerate(self.heads):
+            projected = head[0](at)     # once for both tests
+            ok = self.pixels(i, at, projected)[2]
+            out &= ~ok | (self._ahead(i, at, projected) <= 0)      # NaN (saw nothing) compares False
             said += ok
         return out & (said >= 2)
 
