@@ -38,8 +38,10 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
     axis), direction (2 angles) and, for an elliptic column, roll (analytic Jacobian, `_PoseModel`); then radius = mean distance of the
     column's points from the axis (per principal direction for an elliptic column); repeated
     ``iterations`` times. When ``free_end``, the end cap is placed at the farthest point nearer the
-    axis than ``end_threshold`` times the radius; with no such point the end is open and the length
-    is kept.
+    axis than ``end_threshold`` times the radius (the paper's rule); with no such point, on the
+    points of the cap's flanks (nearer than `FLANK` times the radius, within the cap's radius of the
+    section's farthest point): a crown seen only from below, by perspective heads, shows no point
+    near its axis; with neither the end is open and the length is kept.
 
     Parameters
     ----------
@@ -189,16 +191,29 @@ def _refit_radii(points, s: SectionShape) -> SectionShape:
     return s.replace(radii=np.array([a, b]), caps=np.array([s.caps[0], min(a, b)]))
 
 
+#: `_find_end`'s flank points lie nearer the axis than this times the section's radius (a column's
+#: own side lies at one radius).
+FLANK = 0.8
+
+
 def _find_end(points, s: SectionShape, threshold: float) -> SectionShape:
     q = s.local(points)
     rho = np.hypot(q[:, 0], q[:, 1])
-    near_axis = (rho < threshold * s.radii.mean()) & (q[:, 2] > 0.5 * s.length)
-    closed = list(s.closed)
-    if not near_axis.any():
-        closed[1] = False
-        return s.replace(closed=tuple(closed))
-    tip = float(q[near_axis, 2].max())
+    upper = q[:, 2] > 0.5 * s.length
+    near_axis = (rho < threshold * s.radii.mean()) & upper
     cap = float(s.radii.min())
+    closed = list(s.closed)
+    if near_axis.any():
+        tip = float(q[near_axis, 2].max())
+    else:
+        # a cap seen only on its flanks (cameras below a crown): each flank point within the cap's
+        # radius of the section's highest point puts the tip the cap's height above it at its
+        # distance from the axis
+        flank = (rho < FLANK * s.radii.mean()) & upper & (q[:, 2] > q[:, 2].max(initial=-np.inf) - cap)
+        if not flank.any():
+            closed[1] = False
+            return s.replace(closed=tuple(closed))
+        tip = float((q[flank, 2] + cap - np.sqrt(np.maximum(cap ** 2 - rho[flank] ** 2, 0.0))).max())
     L = max(tip - cap, 0.3 * s.length)
     closed[1] = True
     return s.replace(end=s.start + L * s.axis, closed=tuple(closed), caps=np.array([s.caps[0], cap]))
