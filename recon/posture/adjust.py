@@ -39,9 +39,10 @@ def fit_section(points: np.ndarray, shape: SectionShape, *, loss: str = "soft_l1
     column's points from the axis (per principal direction for an elliptic column); repeated
     ``iterations`` times. When ``free_end``, the end cap is placed at the farthest point nearer the
     axis than ``end_threshold`` times the radius (the paper's rule); with no such point, on the
-    points of the cap's flanks (nearer than `FLANK` times the radius, within the cap's radius of the
-    section's farthest point): a crown seen only from below, by perspective heads, shows no point
-    near its axis; with neither the end is open and the length is kept.
+    points of the cap's flanks (within `FLANK` of the axis in units of the cross-section's ellipse,
+    within the cap's height of the section's farthest point), on the model's own cap: a crown seen
+    only from below, by perspective heads, shows no point near its axis; with neither the end is
+    open and the length is kept.
 
     Parameters
     ----------
@@ -191,8 +192,8 @@ def _refit_radii(points, s: SectionShape) -> SectionShape:
     return s.replace(radii=np.array([a, b]), caps=np.array([s.caps[0], min(a, b)]))
 
 
-#: `_find_end`'s flank points lie nearer the axis than this times the section's radius (a column's
-#: own side lies at one radius).
+#: `_find_end`'s flank points lie within this of the axis in units of the cross-section's ellipse
+#: (a column's own side lies at 1).
 FLANK = 0.8
 
 
@@ -207,13 +208,14 @@ def _find_end(points, s: SectionShape, threshold: float) -> SectionShape:
         tip = float(q[near_axis, 2].max())
     else:
         # a cap seen only on its flanks (cameras below a crown): each flank point within the cap's
-        # radius of the section's highest point puts the tip the cap's height above it at its
-        # distance from the axis
-        flank = (rho < FLANK * s.radii.mean()) & upper & (q[:, 2] > q[:, 2].max(initial=-np.inf) - cap)
+        # height of the section's highest point puts the tip where the model's cap (half an
+        # ellipsoid, the column's semi-axes across, the cap's height along) reaches above it
+        e = np.hypot(q[:, 0] / s.radii[0], q[:, 1] / s.radii[1])
+        flank = (e < FLANK) & upper & (q[:, 2] > q[:, 2].max(initial=-np.inf) - cap)
         if not flank.any():
             closed[1] = False
             return s.replace(closed=tuple(closed))
-        tip = float((q[flank, 2] + cap - np.sqrt(np.maximum(cap ** 2 - rho[flank] ** 2, 0.0))).max())
+        tip = float((q[flank, 2] + cap * (1.0 - np.sqrt(1.0 - e[flank] ** 2))).max())
     L = max(tip - cap, 0.3 * s.length)
     closed[1] = True
     return s.replace(end=s.start + L * s.axis, closed=tuple(closed), caps=np.array([s.caps[0], cap]))
