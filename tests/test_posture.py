@@ -48,7 +48,6 @@ def test_fit_section_finds_a_closed_end_and_keeps_an_open_one():
     assert not fit2.closed[1] and abs(fit2.length - 0.25) < 1e-9
 
 
-
 @pytest.mark.parametrize("radii", [(0.09, 0.09), (0.08, 0.10)])
 def test_fit_section_closes_an_end_seen_only_on_the_flanks_of_its_cap(radii):
     # a head seen by cameras below its crown (perspective heads): the cap shows no point near the
@@ -626,8 +625,7 @@ def test_sparse_scans_are_fitted_near_the_body_or_refused(name, resolution, k, r
 def test_perspective_heads_fit_the_head_at_the_crown(name, resolution, seed):
     """Perspective heads (the `scanner` preset: pinholes 2 m away, 1.1 m up) look up at the crown
     and see no point near the head's axis; the head's end is read from its cap's flanks and the
-    torso hangs from it. Before, the torso kept the match's place: head joint 5-7 cm low, median
-    joint error 3.6-4.2 cm (these three scans)."""
+    torso hangs from it (without that end the torso stays where the coarse match put it, low)."""
     from bodyscan import poses, simulator
     from bodyscan.recon import ReconParams
     from bodyscan.recon.pipeline import estimate_fit
@@ -1633,7 +1631,6 @@ def test_the_fit_recovers_the_limb_joints_of_articulated_bodies_turned_in_the_sc
 def test_the_fit_recovers_the_limb_joints_of_turned_articulated_bodies_seen_in_perspective():
     """The same 16 turned bodies seen by the `scanner` preset's perspective heads, from 2 m at
     1.1 m high: the volume is enclosed between their views (their shared shadows beyond the body
-    in), so at least 8 of 16 meet the targets (12 where this was written; 2 on the volume the
-    contours enclose)."""
+    in), so at least 8 of 16 meet the targets."""
     met = [_limb_targets_met(seed, 90.0, "scanner") for seed in range(16)]
     assert sum(met) >= 8, met
