@@ -235,7 +235,7 @@ def test_doubted_forearm_is_found_again_on_the_points():
     """A forearm held across the chest, matched pointing down into the belly (its fit doubted: poor
     cover, 3 cm rms), is searched again from the elbow on the points: the new axis follows the true
     forearm; a forearm the check does not doubt is left alone."""
-    from bodyscan.recon.posture.adjust import research_forearms
+    from bodyscan.recon.posture.adjust import research_distal
     from bodyscan.recon.posture.bodymodel import standard_body
 
     body = standard_body(1.75)
@@ -254,13 +254,71 @@ def test_doubted_forearm_is_found_again_on_the_points():
     resid = {"chest": 0.005, "upper_arm_r": 0.005, "forearm_r": 0.03}
     counts = {k: 500 for k in secs}
 
-    out, res, _, replaced = research_forearms(pts, secs, resid, counts, body, FitParams())
+    out, res, _, replaced = research_distal(pts, secs, resid, counts, body, FitParams())
     assert replaced == {"forearm_r"}
     assert np.degrees(np.arccos(out["forearm_r"].axis @ true_dir)) < 10
     assert res["forearm_r"] < 0.01
 
-    kept, _, _, none = research_forearms(pts, truth, {**resid, "forearm_r": 0.005}, counts, body, FitParams())
+    kept, _, _, none = research_distal(pts, truth, {**resid, "forearm_r": 0.005}, counts, body, FitParams())
     assert none == set() and kept["forearm_r"] is truth["forearm_r"]
+
+
+def test_lower_leg_left_off_its_points_is_found_again():
+    """Legs seen from their outer sides only (a body turned to the cameras): a lower leg matched
+    across to the other ankle holds no points of its own; searched again from its knee on the
+    points, it follows its shin. The other lower leg, on its points, is left alone."""
+    from bodyscan.recon.posture.adjust import research_distal
+    from bodyscan.recon.posture.bodymodel import standard_body
+
+    body = standard_body(1.75)
+    y = [0.0, 1.0, 0.0]
+    truth = {"waist": SectionShape("waist", [0, 0, 0.9], [0, 0, 1.15], [0.15, 0.11], [1.0, 0, 0])}
+    for side, x in (("l", 0.1), ("r", -0.1)):
+        truth["thigh_" + side] = SectionShape("thigh_" + side, [x, 0, 0.9], [x, 0, 0.48], [0.07, 0.07], y)
+        truth["lower_leg_" + side] = SectionShape("lower_leg_" + side, [x, 0, 0.48], [x, 0, 0.08],
+                                                  [0.05, 0.05], y)
+    pts = np.concatenate([v.surface_points(36, 40) for v in truth.values()])
+    pts = pts[(pts[:, 2] > 0.9) | (np.abs(pts[:, 0]) > 0.1)]      # the legs' outer halves only
+    across = np.array([0.1, 0.0, 0.08]) - [-0.1, 0.0, 0.48]
+    wrong = truth["lower_leg_r"].replace(end=truth["lower_leg_r"].start + 0.4 * across / np.linalg.norm(across))
+    secs = {**truth, "lower_leg_r": wrong}
+    resid = {**{k: 0.005 for k in secs}, "lower_leg_r": np.nan}
+    counts = {**{k: 500 for k in secs}, "lower_leg_r": 5}
+
+    out, res, n, replaced = research_distal(pts, secs, resid, counts, body, FitParams())
+    assert replaced == {"lower_leg_r"}
+    assert np.degrees(np.arccos(out["lower_leg_r"].axis @ [0.0, 0.0, -1.0])) < 10
+    assert res["lower_leg_r"] < 0.01 and n["lower_leg_r"] >= FitParams().fit_min_points
+    assert out["lower_leg_l"] is truth["lower_leg_l"]
+
+
+def test_lower_leg_left_off_its_points_is_found_again():
+    """Legs seen from their outer sides only (a body turned to the cameras): a lower leg matched
+    across to the other ankle holds no points of its own; searched again from its knee on the
+    points, it follows its shin. The other lower leg, on its points, is left alone."""
+    from bodyscan.recon.posture.adjust import research_distal
+    from bodyscan.recon.posture.bodymodel import standard_body
+
+    body = standard_body(1.75)
+    y = [0.0, 1.0, 0.0]
+    truth = {"waist": SectionShape("waist", [0, 0, 0.9], [0, 0, 1.15], [0.15, 0.11], [1.0, 0, 0])}
+    for side, x in (("l", 0.1), ("r", -0.1)):
+        truth["thigh_" + side] = SectionShape("thigh_" + side, [x, 0, 0.9], [x, 0, 0.48], [0.07, 0.07], y)
+        truth["lower_leg_" + side] = SectionShape("lower_leg_" + side, [x, 0, 0.48], [x, 0, 0.08],
+                                                  [0.05, 0.05], y)
+    pts = np.concatenate([v.surface_points(36, 40) for v in truth.values()])
+    pts = pts[(pts[:, 2] > 0.9) | (np.abs(pts[:, 0]) > 0.1)]      # the legs' outer halves only
+    across = np.array([0.1, 0.0, 0.08]) - [-0.1, 0.0, 0.48]
+    wrong = truth["lower_leg_r"].replace(end=truth["lower_leg_r"].start + 0.4 * across / np.linalg.norm(across))
+    secs = {**truth, "lower_leg_r": wrong}
+    resid = {**{k: 0.005 for k in secs}, "lower_leg_r": np.nan}
+    counts = {**{k: 500 for k in secs}, "lower_leg_r": 5}
+
+    out, res, n, replaced = research_distal(pts, secs, resid, counts, body, FitParams())
+    assert replaced == {"lower_leg_r"}
+    assert np.degrees(np.arccos(out["lower_leg_r"].axis @ [0.0, 0.0, -1.0])) < 10
+    assert res["lower_leg_r"] < 0.01 and n["lower_leg_r"] >= FitParams().fit_min_points
+    assert out["lower_leg_l"] is truth["lower_leg_l"]
 
 
 # -- shipped postures ------------------------------------------------------------------------------
@@ -1149,9 +1207,10 @@ def test_a_cloud_refused_on_one_lattice_is_fitted_on_the_shifted_one():
 def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     """tall_walking (1.97 m) at k = 3, fitted in the facing turned 180 degrees from its feet's (the one
     the cloud's third moment gave): its first match's hips sat high, the legs measured 2.18 m and
-    crown to sole 2.02 m, 0.086 apart (under `match_size_disagree`): sized by the legs alone it missed
-    the targets (hip 11.1 cm off; now it lists a lower leg the scan shows); matched at both sizes, the
-    one explaining more points is 2.02 m. (In its feet's facing both ways meet the targets.)"""
+    crown to sole 2.02 m, 0.086 apart (under `match_size_disagree`): sized by the legs alone its knees
+    lie 8-9 cm off; matched at both sizes, the one explaining more points is 2.02 m, and the fit
+    meets the targets with its knees within 5 cm. (In its feet's facing both ways meet the
+    targets.)"""
     from bodyscan.benchmarks.fit_table import outcome, seen_fractions
 
     assert "tall_walking" in _library(), "library postures missing"
@@ -1165,14 +1224,15 @@ def test_legs_and_crown_disagreeing_are_both_matched_and_the_points_decide():
     pts, seen = scan.points, seen_fractions(body, scan.gt_section, 0.01)
     R, c = facing_frame(pts)
     R = _rz(180) @ R
-    rows = []
+    rows, knees = [], []
     for params in (FitParams(), FitParams(match_size_both=0)):
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
             fit = _estimate(np.round((pts - c) @ R.T, 9), params).moved(R.T, c)
         err, ang = _scores(fit, body.joint_dict())
         rows.append(outcome(err, ang, fit.unfitted, seen))
-    assert rows[0] == "pass" and rows[1] not in ("pass", "part"), rows
+        knees.append(max(err.get("knee_l", np.inf), err.get("knee_r", np.inf)))
+    assert rows[0] == "pass" and knees[0] < 0.05 and knees[1] > 0.07, (rows, knees)
 
 
 @pytest.mark.parametrize("k", [1, 2])
@@ -1215,33 +1275,16 @@ def test_lower_legs_seen_from_the_side_stay_on_their_points():
     """a_pose turned 90 degrees (k = 1: the cameras see its sides, each leg's outer side only): the
     thigh's end and the lower leg's fitted start disagree across the view by 4-6 cm, and a lower leg
     moved parallel onto the knee lay off its points (`section_cover` under `fit_min_section_cover`):
-    both were listed although seen. Turned about the knee toward its fitted sole where the parallel
-    move leaves it under `fit_min_section_cover` (`recon.posture.adjust._turn_lower_legs`), both
-    stay; a leg that the parallel move leaves on its points is not turned. The scan is fitted on the
-    volume its contours enclose (`voxel_views` off): between the views, its right lower leg (seen
-    on 0.30 of its area) is listed otherwise."""
+    both were listed although seen. Searched again from the knee (`research_distal`), both stay.
+    The scan is fitted on the volume its contours enclose (`voxel_views` off): between the views,
+    its right lower leg (seen on 0.30 of its area) is listed otherwise."""
     from bodyscan.benchmarks.fit_table import run_one
-    from bodyscan.recon.posture.adjust import _turn_lower_legs
 
     assert "a_pose" in _library(), "library postures missing"
     from bodyscan import poses
 
     row = run_one(poses.load_body("a_pose"), "k1_turn90", 0.01, FitParams(voxel_views=False), clean=False)
     assert row["outcome"] == "pass" and row["unfitted"] == (), row
-
-    # a vertical shank on its points (a column of radius 5 cm), and the same shank 6 cm across
-    shank = SectionShape(name="lower_leg_l", start=np.array([0.0, 0.0, 0.5]), end=np.array([0.0, 0.0, 0.1]),
-                         radii=np.array([0.05, 0.05]), frame_x=np.array([1.0, 0.0, 0.0]))
-    pts = shank.surface_points(24, 12)
-    off = shank.replace(start=shank.start + [0.06, 0, 0], end=shank.end + [0.06, 0, 0])
-    fitted = {"lower_leg_l": shank.replace(start=shank.start + [0, 0, 0.02])}   # its fitted far end: the sole
-    params = FitParams()
-    # on its points: kept as it is
-    assert _turn_lower_legs(pts, {"lower_leg_l": shank}, fitted, params)["lower_leg_l"] is shank
-    # off its points: turned about its knee (kept) toward the fitted sole
-    turned = _turn_lower_legs(pts, {"lower_leg_l": off}, fitted, params)["lower_leg_l"]
-    assert np.allclose(turned.start, off.start) and np.isclose(turned.length, off.length)
-    assert np.linalg.norm(turned.end - shank.end) < np.linalg.norm(off.end - shank.end) - 0.03
 
 
 def _torso_points(bottom_z, spacing):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .bodymodel import LIMBS, StandardBody
+from .bodymodel import LIMBS, StandardBody, kind_of
 from ..geometry import cross, fibonacci_sphere, perp, turn_between, unit
 from .joints import ELBOW_STRAIGHT_DEG as _ELBOW_STRAIGHT_DEG
 from .joints import neck_sides
@@ -264,7 +264,6 @@ def fine_adjust(points, pose: Pose, params: FitParams):
             new[name] = shp
             resid[name] = rms
         secs = _rejoin(new, secs, pose, body, points)
-        secs = _turn_lower_legs(points, secs, new, params)
     return secs, resid, counts
 
 
@@ -329,54 +328,6 @@ def _rejoin(new: dict, old: dict, pose: Pose, body: StandardBody, points=None) -
         joint = root + mid_len * p.axis
         out[prox] = p.replace(start=root, end=joint)
         out[dist] = _keep_dir(q, q.axis, joint, q.length)
-    return out
-
-
-def _turn_lower_legs(points, secs: dict, new: dict, params: FitParams) -> dict:
-    """Each lower leg that `_rejoin` left off its points, turned about its knee toward its fitted
-    sole.
-
-    `_rejoin` moves a lower leg parallel onto its knee. Where the thigh's end and the lower leg's
-    fitted start disagree across the view (a body seen from its side shows each leg's outer side
-    only: they disagreed by 4-6 cm, 1-2 cm seen from the front), the moved leg lies off its points
-    and the checks list it although seen (`section_cover` under `fit_min_section_cover`). Such a
-    leg turns about the knee toward its fitted far end (``new``'s, `_find_end` on the foot's
-    points) when that covers more of its surface. A leg that the parallel move leaves on its
-    points stays as it is (turned everywhere, lower legs seen from the front moved too, and the
-    library's reported lower legs reached less of their calves).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-    secs : dict
-        {name: SectionShape}, rejoined (`_rejoin`).
-    new : dict
-        The sections as fitted before rejoining.
-    params : FitParams
-
-    Returns
-    -------
-    dict
-        ``secs`` with those lower legs turned.
-    """
-    out = dict(secs)
-    covers = None   # `section_cover` of ``out``, measured once for both legs while ``out`` stays
-    for name in ("lower_leg_l", "lower_leg_r"):
-        if name not in out or name not in new:
-            continue
-        q, knee = out[name], out[name].start
-        to_end = new[name].end - knee
-        if to_end @ q.axis <= 0:
-            continue
-        if covers is None:
-            covers = section_cover(points, out, params.fit_coverage_distance)
-        c = covers[name]
-        if c >= params.fit_min_section_cover:
-            continue
-        turned = _keep_dir(q, to_end, knee, q.length)
-        if section_cover(points, {**out, name: turned}, params.fit_coverage_distance)[name] > c:
-            out[name] = turned
-            covers = None
     return out
 
 
@@ -499,18 +450,22 @@ def arm_doubtful(cover: float, rms: float, params: FitParams) -> bool:
     return cover < params.fit_doubt_min_cover or (cover < params.fit_doubt_cover and rms > params.fit_doubt_rms)
 
 
-def research_forearms(points, secs: dict, resid: dict, counts: dict, body: StandardBody,
-                      params: FitParams) -> tuple[dict, dict, dict, set]:
-    """A forearm whose fit the arm check doubts, searched again on the points from its elbow.
+def research_distal(points, secs: dict, resid: dict, counts: dict, body: StandardBody,
+                    params: FitParams) -> tuple[dict, dict, dict, set]:
+    """A forearm or lower leg the checks doubt, searched again on the points from its elbow or knee.
 
-    On a coarse volume a forearm resting against the body (across the chest, beside wide hips)
-    merges with the trunk, and the volume search can send it into flesh the torso's column does
-    not hold (the hips, the belly): its fit then covers its surface poorly and leaves its own
-    points. The points tell the limb apart (`_search_forearm`), from two elbows: where the fine
-    adjustment left it, and the model's upper-arm length along the fitted upper arm (the doubted
-    forearm may have dragged the elbow along). The result the arm check no longer doubts, whose
-    axis does not run inside another section (`_inside_others`), and that covers more of its
-    surface, replaces the doubted forearm.
+    On a coarse volume a limb can be sent where its points are not. A forearm resting against the
+    body (across the chest, beside wide hips) merges with the trunk, and the volume search can send
+    it into flesh the torso's column does not hold (the hips, the belly). Legs seen from their sides
+    (a body turned to the cameras) show each its outer side only: the space between them lies in
+    both cameras' shadow, the volume holds them as one slab, and a lower leg can be matched across
+    to the other ankle. Either way the fit leaves its own points. The points tell the limb apart
+    (`_search_distal`), from two joints: where the fine adjustment left it, and the model's
+    proximal length along the fitted proximal section (the doubted section may have dragged the
+    joint along). A forearm is doubted by the arm check (`arm_doubtful`), a lower leg when it holds
+    fewer than `fit_min_points` points or covers less than `fit_min_section_cover` of its surface.
+    The result no longer doubted, whose axis does not run inside another section
+    (`_inside_others`), and that covers more of its surface, replaces the doubted section.
 
     Parameters
     ----------
@@ -521,34 +476,43 @@ def research_forearms(points, secs: dict, resid: dict, counts: dict, body: Stand
     Returns
     -------
     secs, resid, counts : dict
-        With the re-searched forearms replaced.
+        With the re-searched sections replaced.
     replaced : set of str
         Their names: the coarse volume score no longer speaks for them.
     """
     covers = section_cover(points, secs, params.fit_coverage_distance)
     replaced = set()
-    for prox, dist, root, *_ in LIMBS:
-        if not root.startswith("shoulder") or dist not in secs or prox not in secs:
+    for prox, dist, *_ in LIMBS:
+        if dist not in secs or prox not in secs:
             continue
-        if not arm_doubtful(covers.get(dist, 0.0), resid.get(dist, np.inf), params):
+        if not _doubted(dist, covers.get(dist, 0.0), resid.get(dist, np.inf), counts.get(dist, 0), params):
             continue
         p = secs[prox]
         best = None
         for upper in (p, p.replace(end=p.start + body.section_length(prox) * p.axis)):
             trial = {**secs, prox: upper}
-            found = _search_forearm(points, trial, prox, dist, body, params)
+            found = _search_distal(points, trial, prox, dist, body, params)
             if found is None:
                 continue
             shp, rms, n = found
             if _inside_others(shp, trial, dist):
-                continue   # a forearm does not run inside another part of the body
+                continue   # a limb does not run inside another part of the body
             cov = section_cover(points, {**trial, dist: shp}, params.fit_coverage_distance).get(dist, 0.0)
-            if not arm_doubtful(cov, rms, params) and (best is None or cov > best[0]):
+            if not _doubted(dist, cov, rms, n, params) and (best is None or cov > best[0]):
                 best = (cov, {**trial, dist: shp}, rms, n)
         if best is not None:
             secs, resid, counts = best[1], {**resid, dist: best[2]}, {**counts, dist: best[3]}
             replaced.add(dist)
     return secs, resid, counts, replaced
+
+
+def _doubted(name: str, cover: float, rms: float, n: int, params: FitParams) -> bool:
+    """Whether `research_distal` searches the distal section ``name`` again: a forearm the arm
+    check doubts (`arm_doubtful`), a lower leg with fewer than `fit_min_points` points or less than
+    `fit_min_section_cover` of its surface covered (``cover``, `section_cover`; ``rms`` metres)."""
+    if kind_of(name) == "forearm":
+        return arm_doubtful(cover, rms, params)
+    return n < params.fit_min_points or cover < params.fit_min_section_cover
 
 
 def _inside_others(shape: SectionShape, secs: dict, name: str) -> bool:
@@ -566,15 +530,16 @@ def _inside_others(shape: SectionShape, secs: dict, name: str) -> bool:
     return int(inside.sum()) > 1
 
 
-def _search_forearm(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams):
-    """The forearm ``dist`` searched on the points from the end of ``secs[prox]``: (shape, rms, points)
-    or None.
+def _search_distal(points, secs: dict, prox: str, dist: str, body: StandardBody, params: FitParams):
+    """The distal section ``dist`` (a forearm or lower leg) searched on the points from the end of
+    ``secs[prox]``: (shape, rms, points) or None.
 
-    Every direction within the elbow's bend (`match_max_bend` from the upper arm) is scored by the
-    points on a forearm's surface around it (within 0.6 radii of it, between 0.15 and 1 forearm
-    length) that no other section explains (farther than half `fit_near_distance` from their
-    surfaces), less a quarter of the best score per axis sample inside another section (a forearm
-    is not inside the trunk); the best is fitted by `fit_section` on the points it is nearest to.
+    Every direction within the joint's bend (`match_max_bend` from the proximal section) is scored
+    by the points on the limb's surface around it (within 0.6 radii of it, between 0.15 and 1
+    section length) that no other section explains (farther than half `fit_near_distance` from
+    their surfaces), less a quarter of the best score per axis sample inside another section (a
+    limb is not inside the trunk); the best is fitted by `fit_section` on the points it is nearest
+    to.
     """
     p, q = secs[prox], secs[dist]
     e, L, r = p.end, body.section_length(dist), float(q.radii.mean())
@@ -606,7 +571,7 @@ def limb_columns(X, e, dirs, L, r):
     the axis than 0.4 r there), and (b, m) its position along and distance from the axis. In
     blocks because the whole (k, m) arrays (800 directions by thousands of points) cost far more
     in memory traffic than in arithmetic (the same numbers: one product ``dirs @ rel.T``). Used by
-    the forearm re-search and by `recon.posture.reach`."""
+    the re-search of doubted limbs (`research_distal`) and by `recon.posture.reach`."""
     rel = X - e
     t_all = dirs @ rel.T
     r2 = (rel ** 2).sum(1)[None, :]
@@ -627,5 +592,5 @@ def axis_samples_inside(others, e, dirs, L: float, depth: float, n: int) -> np.n
     return sum((o.coords(samples)[0] < depth).reshape(len(dirs), n).sum(1) for o in others)
 
 
-#: Directions searched for a doubted forearm (`research_forearms`).
+#: Directions searched for a doubted forearm or lower leg (`research_distal`).
 _SEARCH_DIRS = fibonacci_sphere(800)

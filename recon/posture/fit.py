@@ -128,10 +128,7 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    the points nearer the axis than `fit_end_threshold` times the radius (none: the end is open and
    the length kept). Joints are then placed where adjacent axes meet (bent joints) or along the
    axis at the model's proportions (straight joints, and a joint whose distal section is
-   unfitted; an elbow bent less than 35 degrees counts as straight); a lower leg that the
-   rejoining, moved parallel onto its knee, leaves off its points (`fit_min_section_cover`) is
-   turned about the knee to keep its fitted sole (`recon.posture.adjust._turn_lower_legs`: a leg
-   seen from the side); a knee whose ankle was found
+   unfitted; an elbow bent less than 35 degrees counts as straight); a knee whose ankle was found
    from the sole closes the triangle hip-knee-ankle with the model's thigh : shank ratio and the
    bend of the fitted axes (`recon.posture.joints.knee_between`: where two nearly straight axes meet is ill-defined);
    likewise an elbow bent less than 35 degrees whose wrist was placed from the seen fingertips, when
@@ -166,10 +163,12 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    wrongly, and what hangs from it is listed too;
    so is an arm section both poorly covered (`fit_doubt_cover`) and poorly fitted
    (`fit_doubt_rms`), or very poorly covered (`fit_doubt_min_cover`): an arm matched onto the torso's side or a half-seen arm is listed, with a
-   warning, rather than placed wrongly. Before that check, a doubted forearm is searched again on the
-   points from its elbow (`recon.posture.adjust.research_forearms`: a forearm against the body merges with
-   the trunk in a coarse volume and is sent into flesh the torso's column does not hold) and kept
-   when the check no longer doubts it and its axis does not run inside another section
+   warning, rather than placed wrongly. Before that check, a doubted forearm, and a lower leg left
+   off its points (`fit_min_points`, `fit_min_section_cover`), is searched again on the points from
+   its elbow or knee (`recon.posture.adjust.research_distal`: a forearm against the body merges with
+   the trunk in a coarse volume and is sent into flesh the torso's column does not hold; legs seen
+   from their sides merge into one slab, and a lower leg is matched across to the other ankle) and
+   kept when the check no longer doubts it and its axis does not run inside another section
    (`recon.posture.adjust._inside_others`: an unseen forearm pointed at the cameras took the neck's
    points). An arm section whose axis comes within `fit_arm_clearance` of its radii of the
    trunk's fitted columns is listed (`_on_trunk`; also after `recon.posture.reach`): an arm against the
@@ -238,7 +237,7 @@ from .. import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from ..cloud import check_points
 from ..geometry import rotvec
-from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_forearms, section_cover
+from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_distal, section_cover
 from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, place_seams, shank_ratio,
                      split_hips, split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
@@ -517,7 +516,7 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
     body (too few sections, too few points explained)."""
     secs, resid, counts = fine_adjust(work, pose, params)
     secs = anchor_on_head_top(secs, pose.body, params)
-    secs, resid, counts, researched = research_forearms(work, secs, resid, counts, pose.body, params)
+    secs, resid, counts, researched = research_distal(work, secs, resid, counts, pose.body, params)
 
     coarse_secs = dict(pose.sections)
     coarse_scores = {k: v for k, v in (pose.section_scores or {}).items() if k not in researched}
