@@ -292,35 +292,6 @@ def test_lower_leg_left_off_its_points_is_found_again():
     assert out["lower_leg_l"] is truth["lower_leg_l"]
 
 
-def test_lower_leg_left_off_its_points_is_found_again():
-    """Legs seen from their outer sides only (a body turned to the cameras): a lower leg matched
-    across to the other ankle holds no points of its own; searched again from its knee on the
-    points, it follows its shin. The other lower leg, on its points, is left alone."""
-    from bodyscan.recon.posture.adjust import research_distal
-    from bodyscan.recon.posture.bodymodel import standard_body
-
-    body = standard_body(1.75)
-    y = [0.0, 1.0, 0.0]
-    truth = {"waist": SectionShape("waist", [0, 0, 0.9], [0, 0, 1.15], [0.15, 0.11], [1.0, 0, 0])}
-    for side, x in (("l", 0.1), ("r", -0.1)):
-        truth["thigh_" + side] = SectionShape("thigh_" + side, [x, 0, 0.9], [x, 0, 0.48], [0.07, 0.07], y)
-        truth["lower_leg_" + side] = SectionShape("lower_leg_" + side, [x, 0, 0.48], [x, 0, 0.08],
-                                                  [0.05, 0.05], y)
-    pts = np.concatenate([v.surface_points(36, 40) for v in truth.values()])
-    pts = pts[(pts[:, 2] > 0.9) | (np.abs(pts[:, 0]) > 0.1)]      # the legs' outer halves only
-    across = np.array([0.1, 0.0, 0.08]) - [-0.1, 0.0, 0.48]
-    wrong = truth["lower_leg_r"].replace(end=truth["lower_leg_r"].start + 0.4 * across / np.linalg.norm(across))
-    secs = {**truth, "lower_leg_r": wrong}
-    resid = {**{k: 0.005 for k in secs}, "lower_leg_r": np.nan}
-    counts = {**{k: 500 for k in secs}, "lower_leg_r": 5}
-
-    out, res, n, replaced = research_distal(pts, secs, resid, counts, body, FitParams())
-    assert replaced == {"lower_leg_r"}
-    assert np.degrees(np.arccos(out["lower_leg_r"].axis @ [0.0, 0.0, -1.0])) < 10
-    assert res["lower_leg_r"] < 0.01 and n["lower_leg_r"] >= FitParams().fit_min_points
-    assert out["lower_leg_l"] is truth["lower_leg_l"]
-
-
 # -- shipped postures ------------------------------------------------------------------------------
 def _library():
     """The shipped bodies: tracked in the repository, so one missing (or a stage that does not
