@@ -1243,12 +1243,10 @@ def test_legs_ending_in_feet_are_never_judged_cut():
 
 
 def test_lower_legs_seen_from_the_side_stay_on_their_points():
-    """a_pose turned 90 degrees (k = 1: the cameras see its sides, each leg's outer side only): the
-    thigh's end and the lower leg's fitted start disagree across the view by 4-6 cm, and a lower leg
-    moved parallel onto the knee lay off its points (`section_cover` under `fit_min_section_cover`):
-    both were listed although seen. Searched again from the knee (`research_distal`), both stay.
-    The scan is fitted on the volume its contours enclose (`voxel_views` off): between the views,
-    its right lower leg (seen on 0.30 of its area) is listed otherwise."""
+    """a_pose turned 90 degrees (k = 1: the cameras see its sides, each leg's outer side only),
+    fitted on the volume its contours enclose (`voxel_views` off): both lower legs, seen, are
+    fitted and not listed. A lower leg the fit leaves off its points is searched again from its
+    knee (`research_distal`)."""
     from bodyscan.benchmarks.fit_table import run_one
 
     assert "a_pose" in _library(), "library postures missing"
