@@ -1336,9 +1336,10 @@ def test_pelvis_from_below_meets_the_crotch_halfway():
     assert all(np.array_equal(v, joints[k]) for k, v in pelvis_from_below(joints, flexed, points, body, back).items())
 
 
-def _seated_scene(seat_z=0.55, spacing=0.01):
+def _seated_scene(seat_z=0.55, spacing=0.01, above=0.17):
     """Points of a seated torso (elliptic column closed at the seat height) with two thighs leaving
-    forward (-y) at 0.60 m and nothing below, and a fit whose waist starts 17 cm above the seat."""
+    forward (-y) at 0.60 m and nothing below, and a fit whose waist starts ``above`` metres above
+    the seat."""
     x = np.array([1.0, 0, 0])
     ang = np.linspace(0, 2 * np.pi, 120, endpoint=False)
     thighs = []
@@ -1346,7 +1347,7 @@ def _seated_scene(seat_z=0.55, spacing=0.01):
         a2, y2 = np.meshgrid(ang, np.arange(-0.5, -0.11, spacing))
         thighs.append(np.column_stack([cx + 0.07 * np.cos(a2.ravel()), y2.ravel(), 0.60 + 0.07 * np.sin(a2.ravel())]))
     points = np.vstack([_torso_points(seat_z, spacing)] + thighs)
-    secs = {"waist": SectionShape("waist", [0, 0, seat_z + 0.17], [0, 0, 1.2], [0.16, 0.11], x)}
+    secs = {"waist": SectionShape("waist", [0, 0, seat_z + above], [0, 0, 1.2], [0.16, 0.11], x)}
     for s, cx in (("l", 0.1), ("r", -0.1)):
         secs[f"thigh_{s}"] = SectionShape(f"thigh_{s}", [cx, -0.08, 0.60], [cx, -0.5, 0.60], [0.07, 0.07], x)
     return points, secs
@@ -1373,6 +1374,16 @@ def test_find_seat_under_flexed_hips():
     assert np.allclose(find_seat(points, shins, back, 1.70), seat)
     hanging = {**shins, "lower_leg_r": SectionShape("lower_leg_r", [-0.1, 0, 0.3], [-0.1, 0, -0.1], [0.05, 0.05], x)}
     assert find_seat(points, hanging, back, 1.70) is None
+
+
+def test_find_seat_below_a_waist_fitted_high():
+    """A squat's waist column runs on into the buttocks: its lower end fitted 30 cm above the seat
+    (0.18 statures; the rig's pelvis lies 0.05 above the seat), the seat is still found."""
+    from bodyscan.recon.posture.joints import find_seat
+
+    points, secs = _seated_scene(0.45, above=0.30)
+    seat = find_seat(points, secs, np.array([0.0, 1.0, 0.0]), 1.70)
+    assert seat is not None and seat[2] == pytest.approx(0.45, abs=1e-9)
 
 
 def test_pelvis_from_below_sits_on_the_seat():

@@ -152,10 +152,12 @@ PELVIS_ABOVE_CROTCH = 0.052
 ABOVE_SEAT = dict(pelvis=0.052, hip=0.046)
 
 #: Where the seat is sought (`recon.posture.joints.find_seat`): along the waist's axis, from its
-#: lower end, in statures (wide enough for a waist's end 10 cm off), and across it, within this
+#: lower end, in statures (wide enough for a squat's waist column run on 10-15 cm into the
+#: buttocks: its seat then lies up to about 0.15 statures below the column's end, and an empty
+#: ``step`` must follow it within the window), and across it, within this
 #: fraction of the waist's larger radius of its mid-plane (between the buttocks' cleft and the
 #: thighs' sides; chosen on the tune corpus).
-SEAT_WINDOW = (-0.15, 0.05)
+SEAT_WINDOW = (-0.2, 0.05)
 SEAT_STRIP = 0.5
 
 #: Half-width of the strip about the mid-plane between the thighs in which the crotch is sought,
