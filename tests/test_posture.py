@@ -1377,8 +1377,9 @@ def test_find_seat_under_flexed_hips():
 
 
 def test_find_seat_below_a_waist_fitted_high():
-    """A squat's waist column runs on into the buttocks: its lower end fitted 30 cm above the seat
-    (0.18 statures; the rig's pelvis lies 0.05 above the seat), the seat is still found."""
+    """A squat's waist column runs on into the buttocks: with its lower end fitted 30 cm (0.18
+    statures) above the seat, where the rig's pelvis lies 0.05 statures above it, the seat is still
+    found (`SEAT_WINDOW` reaches 0.2 statures down; at 0.15 it was not)."""
     from bodyscan.recon.posture.joints import find_seat
 
     points, secs = _seated_scene(0.45, above=0.30)
