@@ -506,13 +506,19 @@ def research_distal(points, secs: dict, resid: dict, counts: dict, body: Standar
     return secs, resid, counts, replaced
 
 
+def too_few(n: int, cover: float, params: FitParams) -> bool:
+    """The fit's first test of a section (`recon.posture.fit`'s unfitted check): fewer than
+    `fit_min_points` points, or less than `fit_min_section_cover` of its surface covered (``cover``,
+    `section_cover`)."""
+    return n < params.fit_min_points or cover < params.fit_min_section_cover
+
+
 def _doubted(name: str, cover: float, rms: float, n: int, params: FitParams) -> bool:
     """Whether `research_distal` searches the distal section ``name`` again: a forearm the arm
-    check doubts (`arm_doubtful`), a lower leg with fewer than `fit_min_points` points or less than
-    `fit_min_section_cover` of its surface covered (``cover``, `section_cover`; ``rms`` metres)."""
+    check doubts (`arm_doubtful`; ``rms`` metres), a lower leg that fails `too_few`."""
     if kind_of(name) == "forearm":
         return arm_doubtful(cover, rms, params)
-    return n < params.fit_min_points or cover < params.fit_min_section_cover
+    return too_few(n, cover, params)
 
 
 def _inside_others(shape: SectionShape, secs: dict, name: str) -> bool:

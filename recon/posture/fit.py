@@ -237,7 +237,8 @@ from .. import ReconError
 from .bodymodel import LIMBS, StandardBody, kind_of
 from ..cloud import check_points
 from ..geometry import rotvec
-from .adjust import anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_distal, section_cover
+from .adjust import (anchor_on_head_top, arm_doubtful, fine_adjust, fit_section, research_distal, section_cover,
+                     too_few)
 from .joints import (SHANK_RANGE, centre_neck, front_sign, joint_caps, place_joints, place_seams, shank_ratio,
                      split_hips, split_knees, split_torso, swap_sides)
 from .match import Pose, Scorer, coarse_match, explained_fraction, waist_wider_than_deep
@@ -530,7 +531,7 @@ def _finish(work, pose: Pose, params: FitParams, front=None):
     def unseen(n):
         # the checks that do not depend on the front: too few points, too little of the surface
         # covered, or matched in empty voxels (a leg section kept when its fitted surface is seen)
-        return (counts.get(n, 0) < params.fit_min_points or cover.get(n, 0.0) < params.fit_min_section_cover
+        return (too_few(counts.get(n, 0), cover.get(n, 0.0), params)
                 or (coarse_scores.get(n, 1.0) < params.match_min_section_score
                     and shell_scores.get(n, -1.0) < params.match_min_shell_score
                     and not (kind_of(n) in ("thigh", "lower_leg")
