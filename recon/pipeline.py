@@ -449,7 +449,7 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
         warnings.simplefilter("always")
         faces, face_section, skipped = reconstruct_surfaces(mesh_points, meshed, fit, params.surface, vd,
                                                             drop_inner=steps == "proposed",
-                                                            spacing=spacing, extra=extra)
+                                                            spacing=spacing, extra=extra, outliers=rejected)
     for w in caught:  # re-issue from here, once each
         warnings.warn(str(w.message), w.category, stacklevel=2)
     times["surface"] = t_mesh + time.perf_counter() - t0

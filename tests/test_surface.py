@@ -159,6 +159,42 @@ def test_small_section_is_skipped_with_a_warning():
     assert skipped == ["head"] and len(faces) > 1000 and (sec == SECTIONS.index("thigh_l")).all()
 
 
+def test_points_no_section_took_are_meshed_and_outliers_are_not():
+    """A patch of a capsule's points the clustering left in no section, though within T_d (no far
+    chart took them either: the toes of a foot placed wrongly), is meshed on a chart of its own,
+    joined to the surface around it and lying on the capsule (no face in the air); so is a piece
+    apart from it (a cap of a sphere 10 cm off: a piece of a limb the fit missed); the points
+    marked as outliers stay out of every face."""
+    P = capsule_points(n=4000)
+    rng = np.random.default_rng(1)
+    d = rng.normal(size=(150, 3))
+    d = d[d[:, 0] > 0] / np.linalg.norm(d[d[:, 0] > 0], axis=1)[:, None]
+    piece = np.array([0.2, 0.0, 0.0]) + 0.03 * d          # a hemisphere of radius 3 cm facing +x
+    P = np.vstack([P, piece])
+    thigh = SectionShape("thigh_l", [0, 0, -0.2], [0, 0, 0.2], [0.06, 0.06], [1, 0, 0])
+    fit = BodyFit(sections={"thigh_l": thigh}, joints={})
+    member = np.zeros((len(P), 11), bool)
+    apart = np.arange(len(P)) >= len(P) - len(piece)
+    patch = (P[:, 2] > 0.0) & (P[:, 2] < 0.12) & (P[:, 0] > 0.02) & ~apart
+    member[~patch & ~apart, SECTIONS.index("thigh_l")] = True
+    outliers = patch & (P[:, 2] > 0.1)
+    faces, sec, _ = S.reconstruct_surfaces(P, member, fit, outliers=outliers)
+    used = np.zeros(len(P), bool)
+    used[faces.ravel()] = True
+    assert used[patch & ~outliers].mean() > 0.97
+    assert used[apart].mean() > 0.9
+    assert not used[outliers].any()
+    # the piece is meshed on its own: no face joins it to the capsule through the air
+    on_piece = faces[np.isin(faces, np.flatnonzero(apart)).any(axis=1)]
+    assert apart[on_piece].all()
+    off = np.linalg.norm(P[on_piece].mean(axis=1) - [0.2, 0.0, 0.0], axis=1) - 0.03
+    assert off.max() < 0.001 and off.min() > -0.006
+    c = P[faces[np.isin(faces, np.flatnonzero(patch)).any(axis=1)]].mean(axis=1)
+    # distance of each face's centre from the capsule's surface (axis z in -0.2..0.2, radius 0.06)
+    off = np.hypot(np.hypot(c[:, 0], c[:, 1]), np.clip(np.abs(c[:, 2]) - 0.2, 0, None)) - 0.06
+    assert len(c) > 200 and off.max() < 0.001 and off.min() > -0.005
+
+
 def test_delaunay_of_degenerate_charts():
     """Too few, collinear or coincident points give no triangle rather than an error."""
     from bodyscan.recon.surface.mesh import _delaunay

@@ -22,9 +22,9 @@ image, whatever its shape); otherwise (the chart kept for `closed_surface`) an e
 along the part's principal axis (open at the end that joins the body, closed by a cap at the
 other), triangulated like a section (`recon.surface.mesh.section_surface`). Then the merge and the
 air rules as for any section; the faces carry the section whose axis comes nearest. Smaller parts
-are outliers and stay out of the surface. The points every chart left out get the same charts
-afterwards (`recon.surface.mesh.left_out_charts`: a limb listed unfitted beside the trunk, a second
-layer its chart cannot hold).
+are outliers and stay out of the surface. Every point the charts left out, outliers apart, gets
+the same charts afterwards (`recon.surface.mesh.left_out_charts`: a limb listed unfitted beside the
+trunk, a second layer its chart cannot hold, points the clustering put in no section).
 
 The closed surface (the method ``proposed-closed``) is `recon.surface.closed`.
 """
@@ -116,7 +116,7 @@ def nearest_axis(part: np.ndarray, sections: dict) -> int:
 
 def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.ndarray,
                spacing: float, link: float = 4.0, join: float = 3.0, min_points: int = 5,
-               max_edge: float = 4.0, tree=None):
+               max_edge: float = 4.0, tree=None, alone: bool = False):
     """Charts for the points no fitted section explains (see the module docstring).
 
     Parameters
@@ -143,12 +143,13 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
         the cameras left unseen are as wide on a dense scan).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
+    alone : bool
+        Also chart the parts with no meshed point within ``join`` spacings (by default left out:
+        nothing of the body they continue, a fit off the cloud).
 
     Returns
     -------
     list of (int, (k,) int, SectionShape, dict, (k',) int)
-        Parts with no meshed point within ``join`` spacings are left out (nothing of the body
-        they continue).
         Section index, point indices, chart and surface parameter changes of each part (for
         `recon.surface.mesh.reconstruct_surfaces`'s ``extra``), and the part's own points (without
         the joined ones: its solid in `closed_surface`). The parts' points are in no section
@@ -161,7 +162,7 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     for idx in far_parts(points, far, link * spacing, min_points):
         j = nearest_axis(points[idx], sections)
         near = _joined(tree, points, idx, join * spacing)
-        if not meshed[near].any():   # joined to no meshed point: not the body's (a fit off the cloud)
+        if not (alone or meshed[near].any()):   # joined to no meshed point: not the body's (a fit off the cloud)
             continue
         near = near[meshed[near, j]]
         shape = part_shape(points[idx], points[near], SECTIONS[j])

@@ -846,7 +846,7 @@ def merge_sections(points: np.ndarray, section_faces: dict, member: np.ndarray, 
 
 def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
                          params: SurfaceParams = SurfaceParams(), view_dir: np.ndarray | None = None,
-                         drop_inner: bool = True, spacing: float | None = None, extra=()):
+                         drop_inner: bool = True, spacing: float | None = None, extra=(), outliers=None):
     """Per-section surfaces, merged and oriented outward.
 
     Parameters
@@ -873,6 +873,9 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         points two of each of its faces' corners must be (`recon.surface.complete.far_charts`: a far
         part's own points; its faces on the points it joins would overlap its section's chart's,
         edges in three faces); their faces join the section's.
+    outliers : (n,) bool, optional
+        Points rejected as outliers: in no face. Every other point a chart left out is meshed
+        afterwards (`left_out_charts`, with ``drop_inner`` and ``params.far_charts``).
 
     Returns
     -------
@@ -944,37 +947,42 @@ def reconstruct_surfaces(points: np.ndarray, member: np.ndarray, fit: BodyFit,
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     faces = orient_charts(points, faces, sec, fit, extra, view_dir, sp.orient_model_weight)
     if drop_inner and params.far_charts:
-        more, more_sec = left_out_charts(points, faces, member, extra, fit, sp, spacing, view_dir, tree)
+        more, more_sec = left_out_charts(points, faces, sec, fit, sp, spacing, view_dir, tree, outliers)
         faces, sec = np.concatenate([faces, more]), np.concatenate([sec, more_sec])
     return faces, sec, skipped
 
 
-def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, extra, fit: BodyFit,
-                    params: SurfaceParams, spacing: float, view_dir=None, tree=None):
+def left_out_charts(points: np.ndarray, faces: np.ndarray, face_section: np.ndarray, fit: BodyFit,
+                    params: SurfaceParams, spacing: float, view_dir=None, tree=None, outliers=None):
     """Faces for the points that every chart left out: parts of their own (`far_charts`).
 
     A section's chart is one height field around its axis, so it holds one layer: the points of
     a limb the fit listed unfitted, clustered into the trunk beside it, lie at the same angle and
-    height as the trunk's own surface, and no rule keeps a triangle between the two layers. The
-    points no face uses are grouped into connected parts and meshed like the points beyond T_d
-    (`recon.surface.complete.far_charts`: each part's range images, joined to the meshed points
-    around it), under the same air rules, and turned by their own charts (`orient_charts`: the
-    fitted section nearest them is not their surface).
+    height as the trunk's own surface, and no rule keeps a triangle between the two layers. A
+    point within T_d of a section that the clustering left in none (the toes of a foot placed
+    wrongly, beyond its section's end) has no chart at all. The points no face uses, outliers
+    apart, are grouped into connected parts and meshed like the points beyond T_d
+    (`recon.surface.complete.far_charts`: each part's range images, joined to the surface made so
+    far around it, a hand's or a foot's too), under the same air rules, and turned by their own
+    charts (`orient_charts`: the fitted section nearest them is not their surface). A part apart
+    from that surface is meshed too (a piece of a limb the fit listed unfitted); with no surface
+    at all (a fit off the cloud) nothing is.
 
     Parameters
     ----------
     points : (n, 3) float, metres
     faces : (k, 3) int
         The surface so far.
-    member : (n, 11) bool
-    extra : list
-        The far and extremity charts already meshed (`reconstruct_surfaces`).
+    face_section : (k,) int
+        Its faces' sections.
     fit : BodyFit
     params : SurfaceParams
     spacing : float
     view_dir : (n, 3) or (3,) float, optional
     tree : scipy.spatial.cKDTree, optional
         Of ``points``.
+    outliers : (n,) bool, optional
+        Points left out of the surface (default: none).
 
     Returns
     -------
@@ -985,15 +993,14 @@ def left_out_charts(points: np.ndarray, faces: np.ndarray, member: np.ndarray, e
 
     used = np.zeros(len(points), dtype=bool)
     used[np.asarray(faces, dtype=np.int64).ravel()] = True
-    left = member.any(axis=1)
-    for job in extra:
-        left[job[1]] = True
-    left &= ~used
+    left = ~used if outliers is None else ~used & ~np.asarray(outliers, dtype=bool)
     none = (np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8))
-    if left.sum() < params.far_min_points:
+    if left.sum() < params.far_min_points or not len(faces):   # no surface to complete: a fit off the cloud
         return none
-    jobs = far_charts(points, left, fit.sections, member & ~left[:, None], spacing, params.far_link,
-                      params.far_join, params.far_min_points, params.far_max_edge, tree)
+    around = np.zeros((len(points), len(SECTIONS)), dtype=bool)   # the surface so far, by section
+    around[np.asarray(faces, dtype=np.int64).ravel(), np.repeat(np.asarray(face_section, dtype=np.int64), 3)] = True
+    jobs = far_charts(points, left, fit.sections, around, spacing, params.far_link,
+                      params.far_join, params.far_min_points, params.far_max_edge, tree, alone=True)
     if not jobs:
         return none
     more = [_chart_faces(points, job[1], job, dataclasses.replace(params, **job[3]), spacing, view_dir)
