@@ -991,14 +991,14 @@ def left_out_charts(points: np.ndarray, faces: np.ndarray, face_section: np.ndar
     """
     from .complete import far_charts
 
-    used = np.zeros(len(points), dtype=bool)
-    used[np.asarray(faces, dtype=np.int64).ravel()] = True
-    left = ~used if outliers is None else ~used & ~np.asarray(outliers, dtype=bool)
+    around = np.zeros((len(points), len(SECTIONS)), dtype=bool)   # the surface so far, by section
+    around[np.asarray(faces, dtype=np.int64).ravel(), np.repeat(np.asarray(face_section, dtype=np.int64), 3)] = True
+    left = ~around.any(axis=1)
+    if outliers is not None:
+        left &= ~np.asarray(outliers, dtype=bool)
     none = (np.zeros((0, 3), dtype=np.int64), np.zeros(0, dtype=np.int8))
     if left.sum() < params.far_min_points or not len(faces):   # no surface to complete: a fit off the cloud
         return none
-    around = np.zeros((len(points), len(SECTIONS)), dtype=bool)   # the surface so far, by section
-    around[np.asarray(faces, dtype=np.int64).ravel(), np.repeat(np.asarray(face_section, dtype=np.int64), 3)] = True
     jobs = far_charts(points, left, fit.sections, around, spacing, params.far_link,
                       params.far_join, params.far_min_points, params.far_max_edge, tree, alone=True)
     if not jobs:
