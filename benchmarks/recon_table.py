@@ -91,7 +91,9 @@ def body_row(name, overrides, top=3, estimated=False, turn=0.0):
         warnings.simplefilter("ignore")
         for method in ("simple", "proposed"):
             rec = reconstruct(s.points, method, params, view_dir=s.view_dir, fit=fit)
-            tf = s.gt_face[rec.faces]
+            # vertices the method made (curved subdivision) take the nearest true triangle
+            tf = M.corner_true_faces(rec.vertices, rec.faces, truth, scan_points=s.points,
+                                     scan_gt_face=s.gt_face, point_index=rec.point_index)
             out[f"spur_{method}"] = M.spurious(rec.vertices, rec.faces, tf, truth,
                                                truth.params)["spurious_area_fraction"]
             br = M.bridging(rec.vertices, rec.faces, tf, truth, truth.params)
