@@ -769,7 +769,7 @@ def shared_times(table) -> str:
     ok = table[table["status"] == "ok"]
     per_scan = ok.groupby(["body", "preset", "k"])
     parts = []
-    if "time_scan_s" in ok.columns:
+    if "time_scan_s" in ok.columns and ok["time_scan_s"].notna().any():
         parts.append(f"scan {per_scan['time_scan_s'].first().mean():.2f} s")
     if "time_fit_s" in ok.columns and ok["time_fit_s"].notna().any():
         fit = ok[ok["time_fit_s"].notna() & ~ok["method"].isin(OWN_FIT_METHODS)]

@@ -266,6 +266,10 @@ def score_command(args) -> int:
         from bodyscan import simulator
 
         scan = simulator.read_scan(args.cloud)
+        scanned = scan.meta.get("body")
+        if isinstance(scanned, str) and scanned and scanned != body.name:
+            raise BenchError(f"{args.cloud}: this cloud is a scan of the body {scanned!r}, not of "
+                             f"{body.name!r}: give --body {scanned}, or the cloud of {body.name!r}")
     joints = None
     if args.fit:
         try:

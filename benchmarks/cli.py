@@ -112,6 +112,50 @@ def main(argv: list[str] | None = None) -> int:
         warnings.showwarning = shown
 
 
+def run_script(prog: str, main, argv: list[str] | None = None) -> int:
+    """Run the ``main(argv)`` of a ``python -m bodyscan.benchmarks.<prog>`` script as `main` runs
+    a subcommand: a user error is one line on stderr and exit code 2, the traceback only with
+    ``--debug`` (anywhere before ``--``) or ``BODYSCAN_DEBUG=1``."""
+    argv, debug = _split_debug(list(sys.argv[1:] if argv is None else argv))
+    debug = debug or os.environ.get("BODYSCAN_DEBUG") == "1"
+    try:
+        return int(main(argv) or 0)
+    except _user_errors() as exc:
+        if debug:
+            raise
+        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"{prog}: interrupted", file=sys.stderr)
+        return 130
+
+
+def values(kind=float, positive: bool = False):
+    """An argparse ``type``: a comma-separated list of ``kind`` (positive ones with ``positive``);
+    a bad item is argparse's one-line error, naming it."""
+    def parse(text: str) -> list:
+        out = []
+        for item in (x.strip() for x in text.split(",")):
+            try:
+                v = kind(item)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{item!r} is not a {kind.__name__}") from None
+            if positive and not v > 0:
+                raise argparse.ArgumentTypeError(f"{item!r} must be positive")
+            out.append(v)
+        return out
+    return parse
+
+
+def positive(kind=int):
+    """An argparse ``type``: one positive ``kind``."""
+    def parse(text: str):
+        if "," in text:
+            raise argparse.ArgumentTypeError(f"{text!r}: give one value")
+        return values(kind, positive=True)(text)[0]
+    return parse
+
+
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 

@@ -157,6 +157,45 @@ def outcome(err: dict, ang: dict, unfitted, seen: dict | None = None) -> str:
     return "fail" if med <= 0.10 and max(err.values()) <= 0.30 else "WRONG"
 
 
+def check_condition(condition: str, resolution: float, preset: str = "paper") -> None:
+    """`BenchError` naming what is wrong with ``condition`` (see the module docstring), before any
+    work: its pieces, their numbers and section names, and the scanner it asks for."""
+    from bodyscan import simulator
+    from bodyscan.recon.model import SECTIONS
+
+    from . import BenchError
+
+    if condition == "drawn":
+        simulator.preset(preset, resolution=resolution)
+        return
+    head, *rest = re.split(r"_(?=noise|rot|turn|without-)", condition)
+    k = re.fullmatch(r"k(\d+)", head)
+    if not k or not 1 <= int(k.group(1)) <= 5:
+        raise BenchError(f"--conditions {condition!r}: starts with kK, K = 1 to 5 (the laser at K * 15 "
+                         "degrees from the camera's axis), or is 'drawn'")
+    noise = None
+    for part in rest:
+        name = re.match(r"noise|rot|turn|without-", part).group()
+        value = part[len(name):]
+        if name == "without-":
+            bad = [n for n in value.split("+") if n not in SECTIONS]
+            if bad or not value:
+                raise BenchError(f"--conditions {condition!r}: {', '.join(bad) or 'no section'} is not "
+                                 f"a section ({', '.join(SECTIONS)})")
+            continue
+        if name == "turn" and not value:
+            continue
+        try:
+            number = float(value)
+        except ValueError:
+            raise BenchError(f"--conditions {condition!r}: {name} takes a number, not {value!r}") from None
+        if name == "noise":
+            noise = number / 1000
+    # the scanner's own checks (k, noise, resolution)
+    simulator.preset(preset, k=int(k.group(1)), resolution=resolution,
+                     **({} if noise is None else dict(noise_sigma=noise)))
+
+
 def run_one(body, condition: str, resolution: float, params=None, clean: bool = True, *,
             preset: str = "paper", views: bool = True) -> dict:
     """Scan ``body`` under ``condition`` with the scanner ``preset`` at ``resolution``, fit, score:
@@ -303,8 +342,16 @@ def main(argv=None) -> int:
         params = FitParams.from_strings(a.param)
     except ReconError as e:
         ap.error(str(e))
-    names = expand_bodies(b for b in a.bodies.split(",") if b)
     conds = [c for c in a.conditions.split(",") if c]
+    if not conds:
+        ap.error("--conditions: give at least one")
+    for c in conds:
+        check_condition(c, a.resolution, a.preset)
+    if a.json:
+        from bodyscan._io import check_out
+
+        check_out(a.json, option="--json", suffixes=(".json",))
+    names = expand_bodies(b for b in a.bodies.split(",") if b)
     print(f"preset {a.preset}, resolution {a.resolution} m" + ("" if a.views else ", fitted without view directions")
           + "; median/max joint error cm; worst limb angle deg")
     print(f"{'body':<22} {'condition':<10} {'median':>6} {'max':>6} {'worst joint':<12} {'angle':>5}  "
@@ -337,13 +384,14 @@ def main(argv=None) -> int:
         print(f"RATES IN FIELD (left out: {len(rows) - len(inside)} runs of {', '.join(cut)}, whose body "
               f"reaches beyond the scanner's field) " + (rates(inside) if inside else "no run left"))
     if a.json:
-        import json
+        from bodyscan._io import write_json
 
-        with open(a.json, "w") as fh:
-            json.dump([{k: (list(v) if isinstance(v, tuple) else v) for k, v in r.items()} for r in rows],
-                      fh, indent=1, default=float)
+        write_json(a.json, [{k: (list(v) if isinstance(v, tuple) else v) for k, v in r.items()} for r in rows],
+                   indent=1, default=float)
     return 0
 
 
 if __name__ == "__main__":
-    raise SystemExit(main())
+    from bodyscan.benchmarks.cli import run_script
+
+    raise SystemExit(run_script("fit_table", main))

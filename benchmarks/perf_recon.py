@@ -116,7 +116,7 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: st
     from bodyscan.simulator.config import preset
     from bodyscan.simulator.scan import scan
 
-    from .metrics import GroundTruth, MetricParams, bridging, section_accuracy, spurious
+    from .metrics import GroundTruth, MetricParams, bridging, corner_true_faces, section_accuracy, spurious
     from .oracle import fit_from_body
 
     rows = {f: [] for f in factors}
@@ -131,7 +131,9 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: st
                 rec = reconstruct(s.points, method, ReconParams.from_overrides(
                     {**(base or {}), **{n: (int(f) if n.startswith("mesh_") else f) for n in name.split("+")}}),
                                   view_dir=s.view_dir, fit=fit)
-            tf = s.gt_face[rec.faces]
+            # vertices the method made (curved subdivision) take the nearest true triangle
+            tf = corner_true_faces(rec.vertices, rec.faces, truth, scan_points=s.points,
+                                   scan_gt_face=s.gt_face, point_index=rec.point_index)
             acc = section_accuracy(rec.point_sections, s.gt_section)[
                 "section_accuracy_any" if name != "t_n_factor" else "section_accuracy"]
             sp = spurious(rec.vertices, rec.faces, tf, truth, truth.params)["spurious_area_fraction"]
@@ -147,14 +149,16 @@ def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: st
 
 
 def main(argv=None) -> int:
-    from bodyscan.benchmarks.cli import one_blas_thread
+    from bodyscan.benchmarks.cli import one_blas_thread, positive, values
+
+    from .bench_cli import _pairs
 
     one_blas_thread()
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--body", default="standing", help="library body (default: standing)")
-    ap.add_argument("--dense-resolution", type=float, default=0.0014,
+    ap.add_argument("--dense-resolution", type=positive(float), default=0.0014,
                     help="resolution of the dense scan, metres (default: 0.0014)")
-    ap.add_argument("--repeat", type=int, default=3, help="runs per scan, the best is shown (default: 3)")
+    ap.add_argument("--repeat", type=positive(int), default=3, help="runs per scan, the best is shown (default: 3)")
     ap.add_argument("--oracle", action="store_true", help="use the ground-truth posture (no fit)")
     ap.add_argument("--method", default="proposed", choices=("proposed", "paper", "simple"))
     ap.add_argument("--sweep-tn", action="store_true", help="sweep the T_n factor instead of timing")
@@ -168,17 +172,19 @@ def main(argv=None) -> int:
                     help="a reconstruction parameter set in every run of the sweeps (repeatable)")
     ap.add_argument("--versus", action="store_true",
                     help="time proposed beside Poisson depth 9 and ball pivoting on the same clouds")
-    ap.add_argument("--resolutions", default="0.01,0.005,0.002",
+    ap.add_argument("--resolutions", type=values(float, positive=True), default="0.01,0.005,0.002",
                     help="scan resolutions of --versus, metres, comma-separated")
-    ap.add_argument("--factors", default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
+    ap.add_argument("--factors", type=values(float), default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
                     help="values of --sweep-tn / --sweep, comma-separated (T_n factor 1000: always split)")
     args = ap.parse_args(argv)
+    if args.param and not (args.sweep_tn or args.sweep):
+        ap.error("--param sets the sweeps' runs (--sweep, --sweep-tn); the timings run the defaults")
     if args.versus:
-        versus(args.bodies.split(","), [float(x) for x in args.resolutions.split(",")], args.repeat)
+        versus(args.bodies.split(","), args.resolutions, args.repeat)
         return 0
     if args.sweep_tn or args.sweep:
-        sweep_tn(args.bodies.split(","), [float(x) for x in args.factors.split(",")], args.oracle,
-                 args.sweep or "t_n_factor", args.method, dict(kv.split("=", 1) for kv in args.param))
+        sweep_tn(args.bodies.split(","), args.factors, args.oracle, args.sweep or "t_n_factor",
+                 args.method, _pairs(args.param, "--param"))
         return 0
 
     from bodyscan.poses import load_body
@@ -206,4 +212,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from bodyscan.benchmarks.cli import run_script
+
+    sys.exit(run_script("perf_recon", main))

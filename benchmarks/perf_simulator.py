@@ -43,12 +43,14 @@ def replay(body, log) -> tuple[float, float]:
 
 
 def main(argv=None) -> int:
+    from bodyscan.benchmarks.cli import positive
+
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--body", default="standing", help="body name or file (default: standing)")
-    parser.add_argument("--resolution", type=float, default=0.002, help="metres (default: 0.002)")
+    parser.add_argument("--resolution", type=positive(float), default=0.002, help="metres (default: 0.002)")
     parser.add_argument("--projection", default="parallel", choices=("parallel", "perspective"),
                         help="camera model (default: parallel, the paper's)")
-    parser.add_argument("--repeat", type=int, default=5, help="timed repetitions, best kept (default: 5)")
+    parser.add_argument("--repeat", type=positive(int), default=5, help="timed repetitions, best kept (default: 5)")
     args = parser.parse_args(argv)
 
     from bodyscan.poses import load_body
@@ -118,4 +120,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from bodyscan.benchmarks.cli import run_script
+
+    sys.exit(run_script("perf_simulator", main))

@@ -168,9 +168,17 @@ def main(argv=None) -> int:
     a = parser.parse_args(argv)
     from bodyscan.poses.library import expand_bodies
 
+    from bodyscan.recon import ReconError, ReconParams
+
+    from .bench_cli import _pairs
+
+    overrides = _pairs(a.param, "--param")
+    ReconParams.from_overrides(overrides)   # a bad name or value: one line, before any work
+    if a.json:
+        from bodyscan._io import check_out
+
+        check_out(a.json, option="--json", suffixes=(".json",))
     bodies = expand_bodies(b for b in (a.bodies or "").split(",") if b)
-    overrides = dict(kv.split("=", 1) for kv in a.param)
-    from bodyscan.recon import ReconError
 
     rows, refused = [], []
     for name in bodies:
@@ -213,4 +221,6 @@ def main(argv=None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    from bodyscan.benchmarks.cli import run_script
+
+    sys.exit(run_script("recon_table", main))

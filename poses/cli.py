@@ -130,8 +130,11 @@ def _sample(args) -> int:
     from .generate import _import_anny
     from .sample import sample
 
+    from bodyscan._io import check_out
+
     if args.seed < 0 or args.start < 0:
         raise BodyError(f"--seed and --start must be non-negative, got {args.seed}, {args.start}")
+    check_out(args.out, folder=True)   # before the body model is built
     _import_anny()  # says how to install the 'bodies' extra before anything is drawn
     sample(args.n, args.seed, args.out, start=args.start)
     return 0

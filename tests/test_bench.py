@@ -356,3 +356,15 @@ def test_field_line_names_the_scans_cut_by_the_field():
                                               "vertices not measured): tall paper k=1 (13.8 %)")
     assert field_line(pd.DataFrame([r for r in rows if r["body"] == "short"])) == ""
     assert field_line(pd.DataFrame([dict(body="a", preset="paper", k=1.0, method="bpa", status="ok")])) == ""
+
+
+def test_shared_times_leave_out_what_no_scan_measured():
+    from bodyscan.benchmarks.bench import shared_times
+
+    ok = pd.DataFrame(dict(body=["a", "a", "b"], preset="paper", k=1, method=["proposed", "bpa", "proposed"],
+                           status="ok", time_scan_s=[1.0, 1.0, 3.0], time_fit_s=[0.5, np.nan, 1.5]))
+    assert shared_times(ok) == ("per scan, shared by its methods: scan 2.00 s; posture fit 1.00 s "
+                                "(shared by proposed; not in their recon s)")
+    # every method failed: the rows carry no time, and the line says nothing rather than 'nan'
+    failed = ok.assign(status="error", time_scan_s=np.nan, time_fit_s=np.nan)
+    assert shared_times(failed) == "per scan, shared by its methods: -"

@@ -540,3 +540,65 @@ def test_damaged_part_is_set_aside_and_redone(tmp_path, monkeypatch, capsys):
         summary = run_sweep(sweep, out, workers=1, progress=False)
     assert summary.ok == 2 and summary.skipped == 6
     assert len(ResultStore(out).read()) == len(sweep.jobs()) == 8
+
+
+# -- the benchmark scripts (python -m bodyscan.benchmarks.<name>) -----------------------------------
+
+SCRIPT_CASES = [
+    ("fit_table", ["--conditions", "bogus"], "starts with kK"),
+    ("fit_table", ["--conditions", "k9"], "K = 1 to 5"),
+    ("fit_table", ["--conditions", "k1_noiseabc"], "noise takes a number"),
+    ("fit_table", ["--conditions", "k1_rotabc"], "rot takes a number"),
+    ("fit_table", ["--conditions", "k1_without-nosuch"], "nosuch is not a section"),
+    ("fit_table", ["--conditions", "k1_noise-5"], "noise_sigma"),
+    ("fit_table", ["--resolution", "-1"], "resolution"),
+    ("fit_table", ["--bodies", "nosuch"], "no such file"),
+    ("recon_table", ["--param", "foo"], "expected name=value"),
+    ("recon_table", ["--param", "t_d=-1"], "t_d"),
+    ("recon_table", ["--bodies", "nosuch"], "no such file"),
+    ("perf_recon", ["--repeat", "0"], "must be positive"),
+    ("perf_recon", ["--sweep-tn", "--factors", "abc"], "is not a float"),
+    ("perf_recon", ["--versus", "--resolutions", "-0.01"], "must be positive"),
+    ("perf_recon", ["--param", "t_d=0.3"], "sets the sweeps"),
+    ("perf_recon", ["--body", "nosuch"], "no such file"),
+    ("perf_simulator", ["--body", "nosuch"], "no such file"),
+    ("perf_simulator", ["--resolution", "-0.01"], "must be positive"),
+]
+
+
+@pytest.mark.parametrize("script,argv,words", SCRIPT_CASES, ids=[f"{s}:{' '.join(a)}" for s, a, _ in SCRIPT_CASES])
+def test_benchmark_scripts_answer_user_mistakes_in_one_line(script, argv, words, capsys):
+    import importlib
+
+    from bodyscan.benchmarks.cli import run_script
+
+    module = importlib.import_module(f"bodyscan.benchmarks.{script}")
+    try:
+        code = run_script(script, module.main, argv)
+    except SystemExit as exc:            # argparse's own errors (exit code 2)
+        code = exc.code
+    _, err = capsys.readouterr()
+    assert_user_error(code, err, words)
+
+
+def test_benchmark_script_debug_shows_the_traceback():
+    from bodyscan.benchmarks import fit_table
+    from bodyscan.benchmarks.cli import run_script
+    from bodyscan.poses import BodyError
+
+    with pytest.raises(BodyError):
+        run_script("fit_table", fit_table.main, ["--bodies", "nosuch", "--debug"])
+
+
+def test_poses_sample_checks_out_before_building_the_model(files, capsys):
+    code, _, err = run(["poses", "sample", "--n", "1", "--seed", "5", "--out", files / "file"], capsys)
+    assert_user_error(code, err, "is a file, not a folder")
+
+
+def test_score_refuses_a_cloud_of_another_body(files, capsys, tmp_path):
+    mesh = tmp_path / "m.ply"
+    assert main(["reconstruct", str(files / "c.ply"), "--method", "simple", "--out", str(mesh)]) == 0
+    code, _, err = run(["score", mesh, "--body", "walking", "--cloud", files / "c.ply"], capsys)
+    assert_user_error(code, err, "a scan of the body 'standing', not of 'walking'")
+    code, out, err = run(["score", mesh, "--body", "standing", "--cloud", files / "c.ply"], capsys)
+    assert code == 0 and json.loads(out)["seen_fraction"] > 0.5

@@ -29,3 +29,12 @@ def test_body_row_scores_the_curved_mesh_as_the_bench_does():
     assert row["bridge_proposed"] == pytest.approx(ref["bridging_area_fraction"], abs=1e-9)
     assert row["spur_proposed"] == pytest.approx(ref["spurious_area_fraction"], abs=1e-9)
     assert row["acc"] == pytest.approx(ref["section_accuracy"], abs=1e-9)
+
+
+def test_perf_recon_sweep_scores_the_curved_mesh(capsys):
+    from bodyscan.benchmarks.perf_recon import sweep_tn
+
+    sweep_tn(["standing"], [0.5], oracle=True)
+    out = capsys.readouterr().out.splitlines()
+    accuracy, spurious, bridging = map(float, out[-1].split()[1:])
+    assert 0.9 < accuracy <= 1 and 0 <= spurious < 0.05 and 0 <= bridging < 0.005
