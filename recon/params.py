@@ -376,7 +376,7 @@ class SurfaceParams:
         metadata={"help": "view consistency tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
     concave_height: float = field(default=0.3,  # paper: none (0 = off); chosen, see above, spacings
         metadata={"help": "concavity covers: a triangle standing this far in front of every vertex's tangent plane is removed (0 = off)", "unit": "spacings", "range": (0, 1000)})
-    concave_mean_height: float = field(default=0.7,  # chosen, spacings
+    concave_mean_height: float = field(default=0.6,  # chosen on tune62, spacings
         metadata={"help": "concavity covers: a triangle standing this far in front of its vertices' tangent planes on average is removed", "unit": "spacings", "range": (0, 1000)})
     concave_min_edge: float = field(default=2.5,  # chosen, spacings (speed on dense scans, see above)
         metadata={"help": "the concavity rule tests only triangles with an edge longer than this", "unit": "spacings", "range": (0, 1000)})
