@@ -90,26 +90,33 @@ def main(argv: list[str] | None = None) -> int:
     if not debug:
         warnings.showwarning = _one_line_warning(args.command)
     try:
-        return int(args.func(args) or 0)
+        return _answered(f"bodyscan {args.command}", lambda: args.func(args), debug)
+    finally:
+        warnings.showwarning = shown
+
+
+def _answered(prog: str, call, debug: bool) -> int:
+    """``call()``'s exit code; a user error, or running out of memory, is one line on stderr
+    naming ``prog`` and exit code 2 (``debug``: the traceback)."""
+    try:
+        return int(call() or 0)
     except _user_errors() as exc:
         if debug:
             raise
-        print(f"bodyscan {args.command}: error: {_one_line(exc)}", file=sys.stderr)
+        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
         return 2
     except MemoryError:
         if debug:
             raise
-        print(f"bodyscan {args.command}: error: out of memory; ask for less (a coarser resolution, "
-              "fewer samples) or run where more memory is free", file=sys.stderr)
+        print(f"{prog}: error: out of memory; ask for less (a coarser resolution, fewer samples) or "
+              "run where more memory is free", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("bodyscan: interrupted", file=sys.stderr)
+        print(f"{prog}: interrupted", file=sys.stderr)
         return 130
     except BrokenPipeError:      # output piped into a reader that stopped (| head)
         sys.stderr.close()
         return 1
-    finally:
-        warnings.showwarning = shown
 
 
 def run_script(prog: str, main, argv: list[str] | None = None) -> int:
@@ -117,17 +124,7 @@ def run_script(prog: str, main, argv: list[str] | None = None) -> int:
     a subcommand: a user error is one line on stderr and exit code 2, the traceback only with
     ``--debug`` (anywhere before ``--``) or ``BODYSCAN_DEBUG=1``."""
     argv, debug = _split_debug(list(sys.argv[1:] if argv is None else argv))
-    debug = debug or os.environ.get("BODYSCAN_DEBUG") == "1"
-    try:
-        return int(main(argv) or 0)
-    except _user_errors() as exc:
-        if debug:
-            raise
-        print(f"{prog}: error: {_one_line(exc)}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"{prog}: interrupted", file=sys.stderr)
-        return 130
+    return _answered(prog, lambda: main(argv), debug or os.environ.get("BODYSCAN_DEBUG") == "1")
 
 
 def values(kind=float, positive: bool = False):
