@@ -154,3 +154,10 @@ def test_a_bad_param_is_a_usage_error_with_the_nearest_names(capsys):
     with pytest.raises(SystemExit) as e:
         fit_table.main(["--bodies", "standing", "--param", "match_arms_first_retry=1"])
     assert e.value.code == 2 and "removed" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("condition", ["k1", "k3", "k1_rot137", "k1_turn90", "k2_turn", "drawn", "k1_noise1",
+                                       "k1_turn90_noise0.5", "k1_without-forearm_l+upper_arm_l_noise1"])
+def test_every_documented_condition_passes_the_check(condition):
+    fit_table.check_condition(condition, 0.01, "paper")
+    fit_table.check_condition(condition, 0.002, "scanner")
