@@ -93,7 +93,8 @@ def register(sub) -> None:
                    help="the true body: a library name or a body .npz (with ground truth)")
     s.add_argument("--cloud", metavar="CLOUD.ply",
                    help="the scan the mesh was made from (bodyscan scan output): gives recall of the "
-                        "seen surface, and exact true triangles for vertices that are scan points")
+                        "seen surface (without it, the seen-surface measures are null), and exact "
+                        "true triangles for vertices that are scan points")
     s.add_argument("--fit", metavar="FIT.json", help="a posture (bodyscan fit output): joint error")
     s.add_argument("--metric", action="append", default=[], metavar="NAME=VALUE",
                    help="metric setting (see bodyscan bench --help); repeatable")
@@ -297,6 +298,9 @@ def score_command(args) -> int:
     row = score(vertices, faces, body, scan, point_index=point_index, point_sections=point_sections,
                 joints=joints, metric_params=_metric_params(args.metric))
     row = {"mesh": str(args.mesh), "body": body.name, "cloud": args.cloud, **row}
+    if scan is None:   # what the scanner saw is unknown: no seen-surface measure (not the full one's copy)
+        row.update({k: None for k in row if k == "seen_fraction"
+                    or k.startswith(("recall_seen@", "fscore_seen@", "recall_unseen@"))})
     if scan is not None:
         row["matched_vertex_fraction"] = float(np.mean(point_index >= 0))
     from bodyscan._io import dumps, write_text

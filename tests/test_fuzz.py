@@ -378,6 +378,9 @@ def test_score_strict_json_and_other_body_warning(files, capsys, tmp_path):
     text = (tmp_path / "s.json").read_text()
     row = json.loads(text, parse_constant=lambda c: pytest.fail(f"bare {c} in score JSON"))
     assert row["section_accuracy"] is None
+    # no cloud: what the scanner saw is unknown, so no seen-surface measure (it copied the full one)
+    assert row["fscore_seen@5mm"] is None and row["seen_fraction"] is None
+    assert row["recall_seen@5mm"] is None and row["fscore_full@5mm"] is not None
 
 
 # -- atomic writes ----------------------------------------------------------------------------------
