@@ -164,7 +164,7 @@ def _scan(args) -> int:
 
     from . import ScanError
     config = build_config(args)
-    check_out(args.out, error=ScanError)
+    check_out(args.out, suffixes=(".ply",), error=ScanError)   # written as binary PLY
     if args.preview:
         check_out(args.preview, option="--preview", error=ScanError)
     t0 = time.perf_counter()

@@ -605,3 +605,10 @@ def test_score_refuses_a_cloud_of_another_body(files, capsys, tmp_path):
     assert_user_error(code, err, "a scan of the body 'standing', not of 'walking'")
     code, out, err = run(["score", mesh, "--body", "standing", "--cloud", files / "c.ply"], capsys)
     assert code == 0 and json.loads(out)["seen_fraction"] > 0.5
+
+
+def test_scan_names_its_cloud_ply(files, capsys):
+    # the cloud is binary PLY: a .txt or .xyz name would promise a text file that `fit` cannot read
+    code, _, err = run(["scan", "standing", "--out", files / "c.txt"], capsys)
+    assert_user_error(code, err, "name it *.ply")
+    assert not (files / "c.txt").exists()
