@@ -78,6 +78,8 @@ def _sweep(args) -> int:
         from bodyscan._io import check_out
 
         check_out(args.out, folder=True, error=BenchError)
+    elif Path(args.out).exists() and not Path(args.out).is_dir():   # a dry run makes nothing
+        raise BenchError(f"--out {args.out}: is a file, not a folder")
     sweep = load_sweep(path)
     if args.dry_run:
         from .store import ResultStore

@@ -612,3 +612,8 @@ def test_scan_names_its_cloud_ply(files, capsys):
     code, _, err = run(["scan", "standing", "--out", files / "c.txt"], capsys)
     assert_user_error(code, err, "name it *.ply")
     assert not (files / "c.txt").exists()
+
+
+def test_sweep_dry_run_checks_out(files, capsys):
+    code, _, err = run(["sweep", "ci", "--dry-run", "--out", files / "file"], capsys)
+    assert_user_error(code, err, "is a file, not a folder")
