@@ -301,7 +301,7 @@ def score_command(args) -> int:
     if scan is None:   # what the scanner saw is unknown: no seen-surface measure (not the full one's copy)
         row.update({k: None for k in row if k == "seen_fraction"
                     or k.startswith(("recall_seen@", "fscore_seen@", "recall_unseen@"))})
-    if scan is not None:
+    else:
         row["matched_vertex_fraction"] = float(np.mean(point_index >= 0))
     from bodyscan._io import dumps, write_text
 

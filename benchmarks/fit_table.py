@@ -157,23 +157,21 @@ def outcome(err: dict, ang: dict, unfitted, seen: dict | None = None) -> str:
     return "fail" if med <= 0.10 and max(err.values()) <= 0.30 else "WRONG"
 
 
-def check_condition(condition: str, resolution: float, preset: str = "paper") -> None:
-    """`BenchError` naming what is wrong with ``condition`` (see the module docstring), before any
-    work: its pieces, their numbers and section names, and the scanner it asks for."""
-    from bodyscan import simulator
+def parse_condition(condition: str) -> dict:
+    """The pieces of a condition other than ``drawn`` (see the module docstring): ``k`` (int),
+    ``noise`` (metres or None: the preset's), ``rot`` (degrees or None), ``turn`` (degrees, "" for
+    the body's drawn turn, or None) and ``without`` (section names); `BenchError` naming what is
+    wrong."""
     from bodyscan.recon.model import SECTIONS
 
     from . import BenchError
 
-    if condition == "drawn":
-        simulator.preset(preset, resolution=resolution)
-        return
     head, *rest = re.split(r"_(?=noise|rot|turn|without-)", condition)
     k = re.fullmatch(r"k(\d+)", head)
     if not k or not 1 <= int(k.group(1)) <= 5:
         raise BenchError(f"--conditions {condition!r}: starts with kK, K = 1 to 5 (the laser at K * 15 "
                          "degrees from the camera's axis), or is 'drawn'")
-    noise = None
+    out = dict(k=int(k.group(1)), noise=None, rot=None, turn=None, without=[])
     for part in rest:
         name = re.match(r"noise|rot|turn|without-", part).group()
         value = part[len(name):]
@@ -182,18 +180,29 @@ def check_condition(condition: str, resolution: float, preset: str = "paper") ->
             if bad or not value:
                 raise BenchError(f"--conditions {condition!r}: {', '.join(bad) or 'no section'} is not "
                                  f"a section ({', '.join(SECTIONS)})")
-            continue
-        if name == "turn" and not value:
-            continue
-        try:
-            number = float(value)
-        except ValueError:
-            raise BenchError(f"--conditions {condition!r}: {name} takes a number, not {value!r}") from None
-        if name == "noise":
-            noise = number / 1000
-    # the scanner's own checks (k, noise, resolution)
-    simulator.preset(preset, k=int(k.group(1)), resolution=resolution,
-                     **({} if noise is None else dict(noise_sigma=noise)))
+            out["without"] = value.split("+")
+        elif name == "turn" and not value:
+            out["turn"] = ""
+        else:
+            try:
+                number = float(value)
+            except ValueError:
+                raise BenchError(f"--conditions {condition!r}: {name} takes a number, not {value!r}") from None
+            out[name] = number / 1000 if name == "noise" else number
+    return out
+
+
+def check_condition(condition: str, resolution: float, preset: str = "paper") -> None:
+    """`BenchError` naming what is wrong with ``condition`` (`parse_condition`), or the scanner it
+    asks for (k, noise, resolution), before any work."""
+    from bodyscan import simulator
+
+    if condition == "drawn":
+        simulator.preset(preset, resolution=resolution)
+        return
+    c = parse_condition(condition)
+    simulator.preset(preset, k=c["k"], resolution=resolution,
+                     **({} if c["noise"] is None else dict(noise_sigma=c["noise"])))
 
 
 def run_one(body, condition: str, resolution: float, params=None, clean: bool = True, *,
@@ -213,12 +222,12 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
         c = drawn_conditions(body)
         k, noise, resolution = c["k"], c["noise"], c["resolution"]
         body = turned_body(body, c["turn_deg"])
+        c = dict(rot=None, without=[])
     else:
-        k = int(condition.split("_")[0][1:])
-        noise = float(condition.split("noise")[1].split("_")[0]) / 1000 if "noise" in condition else None
-    if "turn" in condition:
-        deg = condition.split("turn")[1].split("_")[0]
-        body = turned_body(body, float(deg) if deg else drawn_conditions(body)["turn_deg"])
+        c = parse_condition(condition)
+        k, noise = c["k"], c["noise"]
+        if c["turn"] is not None:
+            body = turned_body(body, c["turn"] if c["turn"] != "" else drawn_conditions(body)["turn_deg"])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # the preset's own noise unless the condition names one
@@ -227,16 +236,15 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
     # the view directions and heads, as `reconstruct` gets them
     pts, gt, vd, hd = scan.points, scan.gt_section, scan.view_dir, scan.head
     outside = float(scan.meta.get("outside_field", 0.0))
-    if "without-" in condition:
+    if c["without"]:
         # a partial body: the points of the named sections cut from the scan
         from bodyscan.recon.model import SECTIONS
 
-        cut = re.split(r"_(?:noise|rot|turn)", condition.split("without-")[1])[0].split("+")
-        keep = ~np.isin(gt, [SECTIONS.index(n) for n in cut])
+        keep = ~np.isin(gt, [SECTIONS.index(n) for n in c["without"]])
         pts, gt, vd, hd = pts[keep], gt[keep], vd[keep], hd[keep]
     joints = body.joint_dict()
-    if "rot" in condition:
-        R = rot_z(float(condition.split("rot")[1].split("_")[0]))
+    if c["rot"] is not None:
+        R = rot_z(c["rot"])
         pts, vd = pts @ R.T, vd @ R.T
         joints = {n: R @ v for n, v in joints.items()}
     row = dict(body=body.name if hasattr(body, "name") else "?", condition=condition, points=len(pts),
