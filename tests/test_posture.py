@@ -210,6 +210,29 @@ def test_joints_sit_where_the_offset_table_puts_them_in_their_sections_frame(tur
     assert np.allclose(raw["pelvis"], R @ [0, 0, 1.0]) and np.allclose(raw["knee_r"], R @ [-0.1, 0, 0.55])
 
 
+@pytest.mark.parametrize("stretch", [1.0, 1.2, 0.9])
+def test_a_seen_hand_puts_its_wrist_between_fingertips_and_model_forearm(stretch):
+    """An arm whose fingertips are seen (its forearm section closed at them): the wrist lies
+    halfway between a hand length before the fingertips and a model forearm past the elbow. On the
+    model's own arm it is exact. On an arm ``stretch`` times the model's (forearm and hand alike)
+    the two estimates err on opposite sides, by the hand's and the forearm's stretch, and the
+    wrist is off by only half their difference."""
+    from bodyscan.recon.posture.bodymodel import standard_body
+    from bodyscan.recon.posture.joints import place_joints
+
+    body = standard_body(1.75)
+    fore, hand = body.length("forearm"), body.length("hand")
+    cap = 0.02
+    reach = stretch * (fore + hand)                 # elbow to fingertips, along +y
+    secs = {"forearm_l": SectionShape("forearm_l", [0.2, 0, 1.2], [0.2, reach - cap, 1.2], [0.04, 0.04],
+                                      [1.0, 0, 0], closed=(True, True), caps=(0.04, cap))}
+    wrist = place_joints(secs, body, np.array([0, 1.0, 0]), offsets={})["wrist_l"]
+    off = np.linalg.norm(wrist - [0.2, stretch * fore, 1.2])
+    assert off == pytest.approx(0.5 * abs(stretch - 1) * abs(fore - hand), abs=1e-12)
+    if stretch != 1.0:
+        assert off < 0.3 * abs(stretch - 1) * min(fore, hand)
+
+
 def test_crown_anchor_keeps_a_level_thigh_on_its_line():
     """Sliding the model along the torso axis to hang from the crown moves a level thigh (seated,
     knee raised) only along itself: moved across itself it would leave its points."""
@@ -423,11 +446,13 @@ def test_more_postures_meet_the_issue_targets(name):
 @pytest.mark.parametrize("name", ["hands_on_hips", "arms_close"])
 def test_a_hand_resting_on_the_body_keeps_its_wrist(name):
     """Fingertips resting on the hips, or hands against the thighs: the hand's points go to the
-    waist or thigh, yet each wrist lies within 5 cm of the truth (measured 1.1-3.1 cm; the rule
-    "fitted forearm end minus a hand length" put them 6.5-11.4 cm short)."""
+    waist or thigh, yet each wrist lies within 6 cm of the truth (measured 3.5-4.9 cm, the wrist
+    midway between the fingertips' estimate and the model forearm's; 1.1-3.1 cm from the
+    fingertips alone; the rule "fitted forearm end minus a hand length" put them 6.5-11.4 cm
+    short)."""
     fit, joints = _scan_and_fit(name)
     for side in "lr":
-        assert np.linalg.norm(fit.joints[f"wrist_{side}"] - joints[f"wrist_{side}"]) <= 0.05
+        assert np.linalg.norm(fit.joints[f"wrist_{side}"] - joints[f"wrist_{side}"]) <= 0.06
 
 
 @pytest.mark.parametrize("name, k", [("standing", 1), ("standing", 3), ("arms_raised", 1), ("arms_raised", 3)])

@@ -143,8 +143,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    along its own axis only: it stays on its points), and the neck and head follow the crown up to
    `fit_anchor_max_shift` further up; the arms stay on their points and only the shoulders follow,
    along the upper arms, rising with an arm raised above the horizontal (`recon.posture.adjust._move_shoulders`). A
-   wrist lies a hand length before the fingertips; a hand resting on the thigh or hip, whose
-   points went to those sections, is followed along the forearm's axis (`recon.posture.joints._fingertip`).
+   wrist whose fingertips are seen lies midway between a hand length before them and a model
+   forearm past the elbow (the two err in opposite ways when the body's size or proportions are
+   misjudged); a hand resting on the thigh or hip, whose points went to those sections, is
+   followed along the forearm's axis (`recon.posture.joints._fingertip`).
 6. Front and back, hence left and right, come from the data, never from the scanner: the feet
    point forward from the ankles, read on the whole cloud before the fit (`feet_forward`, step 0).
    Where the scan shows no feet that say so (legs cut from the scan, a deep squat on tilted

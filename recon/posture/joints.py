@@ -216,8 +216,8 @@ def place_seams(secs: dict, body: StandardBody, back: np.ndarray, points=None, a
     back : (3,) float
         The subject's backward direction.
     points : (n, 3) float, optional
-        When given, the ankles are placed a foot height above the soles and the wrists a hand
-        length before the fingertips seen.
+        When given, the ankles are placed a foot height above the soles, and the fingertips seen
+        are followed along a hand resting on the body (`_fingertip`).
     arm_tolerance : float
         A nearly straight arm measured (shoulder to wrist) more than this fraction off the model's
         arm has its elbow placed by `elbow_between` (`FitParams.fit_arm_size_tolerance`).
@@ -327,11 +327,15 @@ def _on_sections(secs: dict, body: StandardBody, back: np.ndarray, points, arm_t
             q = secs[dist]
             j[b] = q.start
             if q.closed[1] and dist.startswith("forearm"):
-                # the fingertips are seen: the wrist lies a hand length before them
+                # the fingertips are seen: the wrist lies a hand length before them, or a model
+                # forearm past the elbow; it is put at their mean. The first errs where the
+                # forearm's section runs on over the body the hand rests on, the second with the
+                # person's proportions; a body's size misjudged moves the two in opposite ways
                 full = q.length + q.caps[1]
                 if points is not None:
                     full = _fingertip(points, q, body)
-                j[c] = q.start + max(full - body.length("hand"), 0.5 * full) * q.axis
+                tip = max(full - body.length("hand"), 0.5 * full)
+                j[c] = q.start + 0.5 * (tip + body.length("forearm")) * q.axis
                 if prox in secs and float(secs[prox].axis @ q.axis) > np.cos(np.radians(ELBOW_STRAIGHT_DEG)):
                     tipped.add(dist)
             else:  # otherwise the wrist or ankle lies a standard segment length beyond the joint
