@@ -218,16 +218,15 @@ def run_one(body, condition: str, resolution: float, params=None, clean: bool = 
 
     recon = ReconParams() if params is None else replace(ReconParams(), fit=params)
 
-    if condition == "drawn":
-        c = drawn_conditions(body)
-        k, noise, resolution = c["k"], c["noise"], c["resolution"]
-        body = turned_body(body, c["turn_deg"])
-        c = dict(rot=None, without=[])
+    if condition == "drawn":   # the body's own drawn scanner: the pieces of a condition
+        d = drawn_conditions(body)
+        c = dict(k=d["k"], noise=d["noise"], rot=None, turn="", without=[])
+        resolution = d["resolution"]
     else:
         c = parse_condition(condition)
-        k, noise = c["k"], c["noise"]
-        if c["turn"] is not None:
-            body = turned_body(body, c["turn"] if c["turn"] != "" else drawn_conditions(body)["turn_deg"])
+    k, noise = c["k"], c["noise"]
+    if c["turn"] is not None:
+        body = turned_body(body, c["turn"] if c["turn"] != "" else drawn_conditions(body)["turn_deg"])
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         # the preset's own noise unless the condition names one
