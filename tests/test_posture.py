@@ -446,10 +446,8 @@ def test_more_postures_meet_the_issue_targets(name):
 @pytest.mark.parametrize("name", ["hands_on_hips", "arms_close"])
 def test_a_hand_resting_on_the_body_keeps_its_wrist(name):
     """Fingertips resting on the hips, or hands against the thighs: the hand's points go to the
-    waist or thigh, yet each wrist lies within 6 cm of the truth (measured 3.5-4.9 cm, the wrist
-    midway between the fingertips' estimate and the model forearm's; 1.1-3.1 cm from the
-    fingertips alone; the rule "fitted forearm end minus a hand length" put them 6.5-11.4 cm
-    short)."""
+    waist or thigh, yet each wrist lies within 6 cm of the truth (measured 3.5-4.9 cm; the
+    fitted forearm's end minus a hand length falls 6.5-11.4 cm short)."""
     fit, joints = _scan_and_fit(name)
     for side in "lr":
         assert np.linalg.norm(fit.joints[f"wrist_{side}"] - joints[f"wrist_{side}"]) <= 0.06
