@@ -308,6 +308,8 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
         face_section = np.asarray(rec.face_section)
         row["points_unmeshed"] = int(rec.points_unmeshed)
         row["outliers_rejected"] = int(rec.outliers.sum()) if rec.outliers is not None else 0
+        if rec.noise is not None:   # the range noise the reconstruction measured
+            row["noise_mm"] = float(1000 * rec.noise)
         if rec.moved is not None:  # how far the vertices lie from their input points
             used = np.zeros(len(rec.moved), dtype=bool)   # input points in a face
             f = np.asarray(rec.faces).ravel()

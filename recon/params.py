@@ -513,6 +513,9 @@ class CleanParams:
     denoise: bool = field(default=True, metadata={
         "help": "proposed: mesh each point moved onto the robust local surface of its section",
         "unit": "", "range": None})
+    denoise_min_noise: float = field(default=0.04, metadata={
+        "help": "denoise only a cloud whose measured noise is at least this many point spacings; "
+                "a quieter one is meshed as measured (0 = always denoise)", "unit": "", "range": (0.0, None)})
     denoise_passes: int = field(default=2, metadata={
         "help": "denoising projections where the noise widened the fits: each moves the points onto "
                 "the surfaces fitted again to where the last one put them", "unit": "", "range": (1, None)})
@@ -553,6 +556,7 @@ class CleanParams:
         _check(self.denoise_radius >= 0, "denoise_radius", self.denoise_radius, ">= 0 metres")
         _check(self.denoise_share >= 0, "denoise_share", self.denoise_share, ">= 0 spacings")
         _check(self.denoise_error >= 0, "denoise_error", self.denoise_error, ">= 0 spacings")
+        _check(self.denoise_min_noise >= 0, "denoise_min_noise", self.denoise_min_noise, ">= 0 spacings")
         _check(self.denoise_clamp >= 0, "denoise_clamp", self.denoise_clamp, ">= 0 robust scales")
         _check(self.denoise_reach >= 0, "denoise_reach", self.denoise_reach, ">= 0 metres")
 

@@ -57,6 +57,9 @@ class Reconstruction:
         Points rejected as outliers (before the fit, and in the charts): in no section, no face.
     registration : recon.clean.register.Registration or None
         The correction applied to each head (``register_heads``).
+    noise : float or None
+        The cloud's measured range noise, metres (`Prepared.noise`). ``proposed`` denoises only a
+        cloud whose noise is at least ``denoise_min_noise`` point spacings. None: not measured.
     point_faces : (m', 3) int or None
         The open surface as triangles over the input points alone, before the curved subdivision
         split its long ones (``proposed-closed`` closes these). Per-point data
@@ -78,6 +81,7 @@ class Reconstruction:
     outliers: np.ndarray | None = None
     registration: object = None
     point_faces: np.ndarray | None = None
+    noise: float | None = None
 
     @property
     def point_index(self) -> np.ndarray:
@@ -205,12 +209,16 @@ class Prepared:
     keep : (n,) bool
         Points that are not outliers.
     registration : recon.clean.register.Registration or None
+    noise : float or None
+        The cloud's range noise, metres: the robust scale of its local surface fits
+        (`recon.clean.denoise.reject_outliers`); None when neither outliers nor denoising asked.
     """
 
     points: np.ndarray
     view_dir: np.ndarray | None
     keep: np.ndarray
     registration: object = None
+    noise: float | None = None
 
 
 #: The last `prepare` result, by a digest of its inputs: a benchmark estimates the posture, then
@@ -240,15 +248,18 @@ def _prepare(points, params, view_dir, head) -> Prepared:
 
     c = params.clean
     keep = np.ones(len(points), dtype=bool)
-    reg = None
-    if c.outlier_z > 0 or c.register_heads:
+    reg = noise = None
+    if c.outlier_z > 0 or c.register_heads or c.denoise:
         tree = cKDTree(points)
         spacing = median_spacing(points, tree=tree)
-        if c.outlier_z > 0:
+        if c.outlier_z > 0 or c.denoise:   # the noise, measured on the same fits
             from .clean.denoise import reject_outliers
 
-            keep = ~reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z, c.outlier_floor,
-                                    c.outlier_isolation, tree=tree, workers=params.surface.workers)[0]
+            outlier, noise = reject_outliers(points, spacing, c.outlier_neighbours, c.outlier_z or np.inf,
+                                             c.outlier_floor, c.outlier_isolation, tree=tree,
+                                             workers=params.surface.workers)
+            if c.outlier_z > 0:
+                keep = ~outlier
         if c.register_heads and head is not None:
             from .clean.register import register_heads
 
@@ -258,7 +269,7 @@ def _prepare(points, params, view_dir, head) -> Prepared:
 
                 reg = register_silhouettes(points[keep], head[keep], view_dir[keep], spacing)
             points, view_dir = reg.apply(points, head, view_dir)
-    return Prepared(points, view_dir, keep, reg)
+    return Prepared(points, view_dir, keep, reg, noise)
 
 
 def _check_head(head, n):
@@ -419,7 +430,10 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     t_mesh = time.perf_counter() - t0
     mesh_points = p
     rejected = np.zeros(len(p), dtype=bool)
-    if steps == "proposed" and params.clean.denoise:  # a surface that denoises (recon.clean.denoise)
+    # a surface that denoises (recon.clean.denoise), where there is noise to take out: on a
+    # quieter cloud the fits' own error is as large as what they would take out
+    noisy = prep.noise is None or prep.noise >= params.clean.denoise_min_noise * spacing
+    if steps == "proposed" and params.clean.denoise and noisy:
         from .clean.denoise import denoise
         from .model import EXTREMITIES
 
@@ -497,4 +511,5 @@ def reconstruct(points, method: str = "proposed", params: ReconParams | None = N
     return Reconstruction(vertices=vertices, faces=faces, face_section=face_section,
                           point_sections=sections, fit=fit, times=times, params=params, method=method,
                           skipped=tuple(skipped), points_unmeshed=unmeshed, points=raw, moved=moved,
-                          outliers=outliers, registration=prep.registration, point_faces=point_faces)
+                          outliers=outliers, registration=prep.registration, point_faces=point_faces,
+                          noise=prep.noise)

@@ -15,9 +15,10 @@ ARMS = [SECTIONS.index(s) for s in ("upper_arm_l", "upper_arm_r", "forearm_l", "
 TORSO = [SECTIONS.index(s) for s in ("chest", "waist")]
 
 
-def capsule_body(gap=0.02, pixel=0.01, seed=0):
+def capsule_body(gap=0.02, pixel=0.01, seed=0, noise=0.0005):
     """A body of model sections (arms ``gap`` from the torso, thighs ``gap`` apart), scanned from
-    the front and the back on a ``pixel`` grid (z-buffer, so inner sides are occluded).
+    the front and the back on a ``pixel`` grid (z-buffer, so inner sides are occluded), with
+    Gaussian ``noise`` (metres, each axis).
 
     Returns points (n, 3), true section (n,), true normal (n, 3), view_dir (n, 3), the exact fit.
     """
@@ -53,7 +54,7 @@ def capsule_body(gap=0.02, pixel=0.01, seed=0):
         N[L == j] = model_outward(sections[name], P[L == j])
     keep, vd = front_rear_zbuffer(P, N, pixel)
     rng = np.random.default_rng(seed)
-    P = P[keep] + rng.normal(0, 0.0005, (keep.sum(), 3))
+    P = P[keep] + rng.normal(0, noise, (keep.sum(), 3))
     joints = {"neck": np.array(S["head"][0]), "chest": np.array(S["chest"][0]),
               "shoulder_l": np.array(S["upper_arm_l"][0]), "shoulder_r": np.array(S["upper_arm_r"][0]),
               "elbow_l": np.array(S["forearm_l"][0]), "elbow_r": np.array(S["forearm_r"][0]),
@@ -199,6 +200,28 @@ def test_points_of_a_limb_the_fit_missed_are_denoised_with_their_far_part():
     n /= np.linalg.norm(n, axis=1)[:, None]
     agree = np.abs(np.einsum("ij,ij->i", n, model_outward(arm, tri.mean(axis=1)))) > np.cos(np.radians(10))
     assert agree.mean() > 0.9   # 0.98 (0.56 undenoised)
+
+
+def test_a_cloud_is_denoised_only_when_it_holds_noise_to_take_out():
+    # noise-free, the capsule body's fits measure their own error, far under denoise_min_noise
+    # (0.04 spacings): its points are meshed as measured. With 1.5 mm of noise on the 10 mm
+    # pitch (0.15 spacings) they are moved; so is the noise-free cloud with denoise_min_noise=0.
+    for noise, floor in ((0.0, 0.04), (0.0015, 0.04), (0.0, 0.0)):
+        P, L, N, vd, fit = capsule_body(noise=noise)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            rec = reconstruct(P, "proposed", ReconParams.from_overrides({"denoise_min_noise": floor}),
+                              view_dir=vd, fit=fit)
+        used = np.unique(rec.point_faces)
+        if noise:
+            assert 0.5 * noise < rec.noise < 1.5 * noise
+            assert np.median(rec.moved[used]) > 0.2 * noise
+        else:
+            assert rec.noise < 0.01 * 0.01      # 0.01 spacings
+            if floor:
+                assert (rec.moved == 0).all() and (rec.vertices[:len(P)] == P).all()
+            else:
+                assert 0 < rec.moved.max() < 0.5e-3     # the noise-free limit: 0.5 mm
 
 
 def test_an_unfitted_arm_against_the_trunk_is_meshed_on_its_own_charts_without_air():
@@ -437,7 +460,7 @@ def test_estimated_posture_meshes_are_valid(estimated):
 
 
 # -- the command ----------------------------------------------------------------------------------
-def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsules):
+def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsys, capsules):
     import json
 
     import trimesh
@@ -457,6 +480,9 @@ def test_cli_reconstructs_a_cloud_with_a_given_fit(tmp_path, capsules):
     assert len(m.vertices) > len(P) and len(m.faces) > 1000    # the points, then the curved subdivision's
     assert np.abs(m.vertices[:len(P)] - P).max() < 0.002       # the points (denoised)
     assert png.stat().st_size > 10_000
+    said = capsys.readouterr().err
+    noise = float(said.split("range noise ")[1].split(" mm")[0])   # 0.5 mm per axis
+    assert 0.4 < noise < 0.8 and "denoised (points moved" in said
 
 
 def test_cli_user_errors_are_one_line(tmp_path, capsys, capsules):

@@ -16,7 +16,8 @@ would flatten an arm by about a millimetre).
   points (itself included), at most ``clamp`` robust scales (where the noise widened the fits, up
   to the outlier threshold); a point farther than the outlier threshold from that fit is rejected
   as well (outliers in the charts). On a noise-free cloud the scale is the fits' own error, a small
-  fraction of a millimetre, so the points barely move.
+  fraction of a millimetre, so the points barely move (`recon.reconstruct` does not denoise a cloud
+  that quiet: ``denoise_min_noise``).
 """
 
 from __future__ import annotations
