@@ -116,12 +116,10 @@ def run(args) -> int:
         rec = reconstruct(points, args.method, params, view_dir=view_dir, fit=fit, head=head)
     for w in caught:
         print(f"reconstruct: warning: {w.message}", file=sys.stderr)
-    if rec.noise is not None and "denoise" in rec.times:
-        print(f"reconstruct: range noise {1000 * rec.noise:.2f} mm: denoised (points moved "
-              f"{1000 * np.median(rec.moved):.2f} mm, median)", file=sys.stderr)
-    elif rec.noise is not None and args.method.startswith("proposed") and params.clean.denoise:
-        print(f"reconstruct: range noise {1000 * rec.noise:.2f} mm, under denoise_min_noise: "
-              "meshed as measured", file=sys.stderr)
+    if rec.noise is not None and args.method.startswith("proposed") and params.clean.denoise:
+        what = (f"denoised (points moved {1000 * np.median(rec.moved):.2f} mm, median)"
+                if "denoise" in rec.times else "under denoise_min_noise: meshed as measured")
+        print(f"reconstruct: range noise {1000 * rec.noise:.2f} mm: {what}", file=sys.stderr)
     rec.write(out)
     times = ", ".join(f"{k} {v:.2f} s" for k, v in rec.times.items())
     print(f"reconstruct: {len(rec.faces)} triangles -> {out} ({times})", file=sys.stderr)
