@@ -42,9 +42,11 @@ import warnings
 def time_scan(points, view_dir, method, fit, repeat):
     """Best-of-``repeat`` stage times (dict) of `recon.reconstruct` on one cloud."""
     from bodyscan.recon import reconstruct
+    from bodyscan.recon.pipeline import clear_prepared
 
     best = None
     for _ in range(repeat):
+        clear_prepared()   # every run from the raw cloud: outlier rejection and noise included
         cpu = time.process_time()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")

@@ -226,6 +226,12 @@ class Prepared:
 _PREPARED: dict = {}
 
 
+def clear_prepared() -> None:
+    """Forget the cached `prepare` result, so that the next `reconstruct` starts from the raw
+    cloud (a timing of the whole reconstruction, repeated on one cloud, must not reuse it)."""
+    _PREPARED.clear()
+
+
 def prepare(points: np.ndarray, params: ReconParams, view_dir=None, head=None) -> Prepared:
     """Outlier rejection (``outlier_z``), then registration between heads (``register_heads``,
     when ``head`` (n,) is known), on checked points (n, 3)."""

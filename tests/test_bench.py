@@ -289,6 +289,20 @@ def test_perf_recon_versus_times_a_refused_fit_and_goes_on(monkeypatch, capsys):
     assert "2 clouds (2 refused, timed until refused)" in out
 
 
+def test_perf_recon_times_every_run_from_the_raw_cloud(monkeypatch):
+    # a repeated timing of one cloud prepares it (outliers, noise) every time, not from a cache
+    from bodyscan.benchmarks import perf_recon
+    from bodyscan.recon import pipeline
+    from test_pipeline import capsule_body
+
+    P, _, _, vd, fit = capsule_body()
+    calls = []
+    prepare = pipeline._prepare
+    monkeypatch.setattr(pipeline, "_prepare", lambda *a: calls.append(1) or prepare(*a))
+    perf_recon.time_scan(P, vd, "proposed", fit, 3)
+    assert len(calls) == 3
+
+
 def test_registration_error_is_what_a_correction_leaves_of_the_planted_misalignment():
     from bodyscan import simulator
     from bodyscan.recon.clean.register import Registration
