@@ -76,15 +76,32 @@ def _radii(points: np.ndarray, shape: SectionShape) -> SectionShape:
     from scipy.optimize import least_squares
 
     q = shape.local(points)
-    col = points[(q[:, 2] >= 0) & (q[:, 2] <= shape.length)]
-    if len(col) < MIN_POINTS:
+    q = q[(q[:, 2] >= 0) & (q[:, 2] <= shape.length)]
+    if len(q) < MIN_POINTS:
         return shape
-    open_ = shape.replace(closed=(False, False))
-    fit = least_squares(lambda ab: open_.replace(radii=ab).coords(col)[0], np.clip(shape.radii, 0.006, 0.3),
-                        loss="soft_l1", f_scale=0.005, bounds=(0.006, 0.3), max_nfev=30)
+    fit = least_squares(_open_distance, np.clip(shape.radii, 0.006, 0.3), jac=_open_distance_jac,
+                        args=(q[:, 0] ** 2, q[:, 1] ** 2), loss="soft_l1", f_scale=0.005,
+                        bounds=(0.006, 0.3), max_nfev=30)
     tip = shape.length + shape.caps[1]        # the fingertips (toes) stay where they are
     cap = min(float(fit.x.min()), 0.4 * tip)
     return shape.replace(end=shape.start + (tip - cap) * shape.axis, radii=fit.x, caps=np.array([cap, cap]))
+
+
+def _open_distance(ab: np.ndarray, x2: np.ndarray, y2: np.ndarray) -> np.ndarray:
+    """(k,) signed distance from an open elliptic column of radii ``ab`` (2,) of the points whose
+    squared local coordinates across it are ``x2``, ``y2`` (k,): `SectionShape.coords`' r."""
+    s = np.sqrt(x2 / ab[0] ** 2 + y2 / ab[1] ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(s > 0, np.sqrt(x2 + y2) * (1.0 - 1.0 / s), -ab.min())
+
+
+def _open_distance_jac(ab: np.ndarray, x2: np.ndarray, y2: np.ndarray) -> np.ndarray:
+    """(k, 2) derivatives of `_open_distance` by the radii: ``-|xy| x^2 / (a^3 s^3)`` and likewise
+    ``b`` (analytic: the numerical one cost `_radii` two thirds of its evaluations)."""
+    s3 = (x2 / ab[0] ** 2 + y2 / ab[1] ** 2) ** 1.5
+    with np.errstate(divide="ignore", invalid="ignore"):
+        f = np.where(s3 > 0, -np.sqrt(x2 + y2) / s3, 0.0)
+    return np.column_stack([f * x2 / ab[0] ** 3, f * y2 / ab[1] ** 3])
 
 
 def extremity_points(points: np.ndarray, fit: BodyFit, parent: str, joint: str) -> np.ndarray:
