@@ -212,7 +212,7 @@ class SurfaceParams:
         (paper 3.3, width not given).
     max_edge_factor : float
         Triangles with a 3D edge longer than this times the section's median point spacing (and
-        than ``hull_edge_min``) are removed. 0 keeps every triangle, as the paper does: holes in
+        than ``max_edge_min``) are removed. 0 keeps every triangle, as the paper does: holes in
         the data are covered by a few large triangles (paper 4.2).
     hull_edge_factor : float
         Delaunay triangulates the convex hull of the projected points: triangles on the
@@ -392,9 +392,13 @@ class SurfaceParams:
         "help": "orientation: a triangle faces its vertices' viewing direction plus this times the "
                 "model's outward direction (0 = the view alone, as the paper)", "unit": "",
         "range": (0.0, 1000.0)})
-    hull_edge_min: float = field(default=0.04, metadata={
-        "help": "the boundary peel and the charts' edge limits never remove triangles shorter "
-                "than this: dense scans keep their surface across small gaps (0 = spacings alone)",
+    hull_edge_min: float = field(default=0.05, metadata={
+        "help": "the boundary peel never removes triangles shorter than this: dense scans keep "
+                "the unseen gaps at the silhouettes covered (0 = spacings alone)",
+        "unit": "m", "range": (0.0, None)})
+    max_edge_min: float = field(default=0.04, metadata={
+        "help": "the edge limits (max_edge_factor, the feet's and far charts' far_max_edge) never "
+                "remove triangles shorter than this (0 = spacings alone)",
         "unit": "m", "range": (0.0, None)})
     peel_same_side: float = field(default=0.9, metadata={
         "help": "the peel measures a triangle seen along one axis (its view directions' mean, up "
@@ -427,7 +431,7 @@ class SurfaceParams:
         "help": "meshed points within this of a far part join its chart", "unit": "spacings",
         "range": (0.0, None)})
     far_max_edge: float = field(default=4.0, metadata={
-        "help": "longer triangles (as their camera saw them; at least hull_edge_min, a hand's this "
+        "help": "longer triangles (as their camera saw them; at least max_edge_min, a hand's this "
                 "many far_hand_spacing) leave the hands', feet's and far charts (0 = no limit)",
         "unit": "spacings", "range": (0.0, None)})
     far_hand_spacing: float = field(default=0.0075, metadata={
@@ -878,7 +882,7 @@ PAPER = {
     "orient_model_weight": 0.0,
     "open_joint_ends": False,
     "far_charts": False, "far_view": False,
-    "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
+    "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "max_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
     "cover_max_edge": 0.0, "curve_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,

@@ -473,21 +473,22 @@ def test_peel_keeps_the_steep_flanks_the_camera_saw():
     assert S.face_areas(P, seen).sum() > 0.97 * 2 * np.pi * R * 0.298
 
 
-def test_chart_edge_limit_keeps_unseen_rims_up_to_hull_edge_min():
+def test_chart_edge_limit_keeps_unseen_rims_up_to_max_edge_min():
     # a cylinder (R 5 cm) scanned front and rear on a 5 mm grid: each camera's image stops 2.5 mm
     # inside the silhouette, so the rims between the two images are 3.1 cm wide and unseen. An
-    # edge limit of 4 spacings (2 cm, a hand's or a foot's chart) leaves them open; at least
-    # hull_edge_min (4 cm), as on a 1 cm scan, they are closed by faces on the surface
+    # edge limit of 4 spacings (2 cm, a hand's or a foot's chart) leaves them open, whatever the
+    # peel keeps; at least max_edge_min (4 cm), as on a 1 cm scan, they are closed by faces on the
+    # surface
     R = 0.05
     P, vd = front_rear_cylinder(R, np.linspace(-0.0475, 0.0475, 20), np.arange(0, 0.2, 0.005))
     front = vd[:, 1] < 0
     shape = SectionShape("foot_l", [0, 0, 0], [0, 0, 0.2], [R, R], [1, 0, 0], closed=(False, False))
-    spacings = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0, hull_edge_min=0.0), view_dir=vd)
+    spacings = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0, max_edge_min=0.0), view_dir=vd)
     floor = S.section_surface(P, shape, SurfaceParams(max_edge_factor=4.0), view_dir=vd)
     rim = lambda f: f[front[f].any(axis=1) & ~front[f].all(axis=1)]
     assert len(rim(spacings)) == 0                                      # the rims stay open
     assert len(rim(floor)) > 2 * 0.9 * 0.2 / 0.005                      # both rims closed along z
-    assert S.max_edge_length(P, floor).max() <= SurfaceParams().hull_edge_min
+    assert S.max_edge_length(P, floor).max() <= SurfaceParams().max_edge_min
     c = P[floor].mean(axis=1)
     assert (R - np.hypot(c[:, 0], c[:, 1])).max() < 0.003                # chords of the cylinder
     assert S.face_areas(P, floor).sum() > 0.97 * 2 * np.pi * R * 0.195    # the whole tube
@@ -497,13 +498,14 @@ def test_coarse_scan_keeps_the_flanks_between_front_and_rear_views():
     # a thigh-sized cylinder (R 6 cm) scanned front and rear on a 1 cm grid: each camera's image
     # stops 5 mm inside the silhouette, so the flanks between the two images are 4.8 cm wide and
     # unseen. proposed's peel (6 spacings) closes them with chords of the cylinder; the paper's
-    # (4 spacings in 3D, the floor hull_edge_min 4 cm) leaves them open
+    # (4 spacings in 3D, no floor: `PAPER`) leaves them open
     R = 0.06
     P, vd = front_rear_cylinder(R, np.arange(-0.055, 0.0551, 0.01), np.arange(0, 0.3, 0.01))
     front = vd[:, 1] < 0
     shape = SectionShape("thigh_l", [0, 0, 0], [0, 0, 0.3], [R, R], [1, 0, 0], closed=(False, False))
     proposed = S.section_surface(P, shape, SurfaceParams(), view_dir=vd)
-    paper = S.section_surface(P, shape, SurfaceParams(hull_edge_factor=4.0, peel_same_side=2.0), view_dir=vd)
+    paper = S.section_surface(P, shape, SurfaceParams(hull_edge_factor=4.0, peel_same_side=2.0, hull_edge_min=0.0),
+                              view_dir=vd)
     flank = lambda f: f[front[f].any(axis=1) & ~front[f].all(axis=1)]
     assert len(flank(paper)) == 0                                        # open flanks
     assert len(flank(proposed)) > 2 * 0.9 * 0.3 / 0.01                   # both flanks closed along z
@@ -716,7 +718,7 @@ def test_a_hands_range_image_does_not_span_a_hole_a_few_centimetres_wide():
     # 3.5 cm band between them the camera did not see (3.5 cm across the view, 4 cm in 3D). A
     # hand is a few centimetres across: its chart keeps triangles up to far_max_edge spacings of
     # the coarsest scan meshed as range images (4 x 7.5 mm), so both rows are meshed and nothing
-    # spans the band; a foot keeps hull_edge_min's 4 cm (the unseen rims along its length) and
+    # spans the band; a foot keeps max_edge_min's 4 cm (the unseen rims along its length) and
     # spans it
     import dataclasses
     from types import SimpleNamespace

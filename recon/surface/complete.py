@@ -139,7 +139,7 @@ def far_charts(points: np.ndarray, far: np.ndarray, sections: dict, meshed: np.n
     max_edge : float
         Spacings: longer triangles are left out of these charts (a hand's or a foot's points are
         few across its features: long triangles there span fingers and toes), but never shorter
-        than ``hull_edge_min`` (the chart's trim, `recon.surface.mesh.section_surface`: the rims
+        than ``max_edge_min`` (the chart's trim, `recon.surface.mesh.section_surface`: the rims
         the cameras left unseen are as wide on a dense scan).
     tree : scipy.spatial.cKDTree, optional
         Of ``points``, if already built.
@@ -204,7 +204,7 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
         Metres: on scans coarser than this the hands are triangulated around their column
         (``far_view`` off in their parameters): there a hand's range image bridges the gaps
         between its fingers. On finer scans their range images keep triangles up to
-        ``max_edge`` of these spacings (as their camera saw them), not ``hull_edge_min``: a hand
+        ``max_edge`` of these spacings (as their camera saw them), not ``max_edge_min``: a hand
         is a few centimetres across, and longer triangles span its curled fingers and knuckles.
 
     Returns
@@ -232,7 +232,7 @@ def extremity_charts(points: np.ndarray, ext: np.ndarray, fit, meshed: np.ndarra
             if spacing > hand_spacing:
                 change["far_view"] = False     # a hand on a coarse scan: around its column
             elif max_edge > 0:
-                change["hull_edge_min"] = max_edge * hand_spacing
+                change["hull_edge_min"] = change["max_edge_min"] = max_edge * hand_spacing
         jobs.append((j, np.union1d(idx, near), fit.extremities[name], change, idx))
     return jobs
 

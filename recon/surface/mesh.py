@@ -52,7 +52,8 @@ TWO_PI = 2 * np.pi
 
 #: The surface settings the simple baseline takes from the paper's (`recon.params.PAPER`), whatever
 #: ``proposed`` uses: no fold rule, the paper's boundary peel in 3D, faces turned by the view alone.
-SIMPLE_SURFACE = ("fold_cos", "hull_edge_factor", "hull_edge_min", "cover_max_edge", "orient_model_weight")
+SIMPLE_SURFACE = ("fold_cos", "hull_edge_factor", "hull_edge_min", "max_edge_min", "cover_max_edge",
+                  "orient_model_weight")
 
 #: The seam copies reach at most this many median point spacings past theta = 0 and 2*pi: enough
 #: for Delaunay to see the same neighbourhoods on both sides, few copies on dense scans.
@@ -422,13 +423,13 @@ def _trim(points: np.ndarray, faces: np.ndarray, view_dir, params: SurfaceParams
     """``faces`` (k, 3) of a chart's Delaunay triangulation without its hull's long slivers (the
     boundary peel, ``hull_edge_factor`` / ``hull_edge_min``) and, with ``max_edge_factor`` or
     ``cover_max_edge``, without its long triangles; lengths as the camera saw them
-    (`view_edge_length`). Neither limit removes a triangle shorter than ``hull_edge_min``: what the
-    cameras left unseen between their samples (the flanks of a foot along the view, the rims of
-    a hand) is as wide on a dense scan as on a coarse one."""
+    (`view_edge_length`). Each limit has a floor in metres (``hull_edge_min``, ``max_edge_min``):
+    what the cameras left unseen between their samples (the silhouettes, the flanks of a foot
+    along the view, the rims of a hand) is as wide on a dense scan as on a coarse one."""
     hull_limit = max(params.hull_edge_factor * spacing, params.hull_edge_min)
     seen_len = view_edge_length(points, faces, view_dir, params.peel_same_side, params.peel_stretch)
     faces, seen_len = faces[peel := peel_boundary(faces, seen_len > hull_limit)], seen_len[peel]
-    limit = np.inf if params.max_edge_factor <= 0 else max(params.max_edge_factor * spacing, params.hull_edge_min)
+    limit = np.inf if params.max_edge_factor <= 0 else max(params.max_edge_factor * spacing, params.max_edge_min)
     if params.cover_max_edge > 0:
         limit = min(limit, max(params.cover_max_edge, hull_limit))
     if np.isfinite(limit) and len(faces):
@@ -1121,7 +1122,8 @@ def rejoin_left_out(points: np.ndarray, faces: np.ndarray, jobs, params: Surface
         if len(sub) < 3:
             continue
         own = dataclasses.replace(params, **(job[3] if len(job) > 3 else {}))
-        own = dataclasses.replace(own, max_edge_factor=edge, hull_edge_factor=edge, hull_edge_min=0.0)
+        own = dataclasses.replace(own, max_edge_factor=edge, hull_edge_factor=edge, hull_edge_min=0.0,
+                                  max_edge_min=0.0)
         f = _chart_faces(points, sub, job, own, spacing, view_dir)
         f = f[(~used[f]).any(axis=1)]
         out.append(f)
