@@ -882,8 +882,8 @@ PAPER = {
     "orient_model_weight": 0.0,
     "open_joint_ends": False,
     "far_charts": False, "far_view": False,
-    "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "max_edge_min": 0.0, "peel_same_side": 2.0, "rejoin_edge": 0.0,
-    "cover_max_edge": 0.0, "curve_edge": 0.0,
+    "hull_edge_factor": 4.0, "hull_edge_min": 0.0, "max_edge_min": 0.0, "peel_same_side": 2.0,
+    "rejoin_edge": 0.0, "cover_max_edge": 0.0, "curve_edge": 0.0,
     # real scanner conditions (the paper's clouds were noise-free)
     "outlier_z": 0.0, "denoise": False, "register_heads": False,
     # posture (paper 2)
