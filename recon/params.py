@@ -678,12 +678,21 @@ class FitParams:
                                            # (`recon.posture.match.size_ratios`); not applied when the scan shows feet
                                            # (`recon.posture.fit.feet_forward`) (0 = off; chosen)
     match_size_both: int = field(default=1,  # 2.1: 1 = when the legs size the body (see `match_size_disagree`) but crown to
-        metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points", "unit": "", "range": (0, 1)})
+        metadata={"help": "1 = when legs and crown-to-sole disagree, match at both sizes and keep the one explaining more points (sized as a child: by match_crown_first_margin)", "unit": "", "range": (0, 1)})
                                            # sole differs from them by more than `match_resize_tolerance`, the body is
                                            # matched at both sizes and the one explaining more points is kept: the
                                            # two measures disagree because the hips sit off along the torso's axis,
                                            # or because the body's proportions are not the standard's, and the
                                            # points tell which (chosen)
+    match_crown_first_margin: float = field(default=0.2,  # 2.1: with `match_size_both`: a body sized by its legs as a child
+        metadata={"help": "a body sized by its legs as a child: its crown-to-sole match is tried first when it explains more than this fraction of the points more (1 = never)", "unit": "", "range": (0, 1)})
+                                           # (crown to sole under `fit_anchor_min_stature`) whose crown to sole
+                                           # disagrees by more than `match_size_disagree` is matched at both sizes;
+                                           # the crown-to-sole match is tried first when its model explains more
+                                           # than this fraction of the points more than the legs' match, and is
+                                           # otherwise the first fallback. A short adult's legs are short for its
+                                           # trunk and size it far too small; a child's larger model explains a
+                                           # little more by nature, hence the margin (chosen)
     match_resized_anchor_shift: float = field(default=0.0,  # 2.3(1): after sizing from the crown (`match_size_disagree`: the torso was
         metadata={"help": "after sizing from the crown, hang the torso from the crown when off by more than this", "unit": "m", "range": (0, 2)})
                                            # misplaced along its axis), the next match slides the torso to hang from the

@@ -1235,7 +1235,10 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
     legs disagree (1.53 against 1.41 m at k = 1), and one leg chain may measure 0.78 of the trunk
     (k = 2); matched at the larger size (`match_size_both`), or sized from the trunk with the lower
     legs listed (`match_leg_trunk_min`), the fit listed a lower leg the scan shows (k = 1) or missed
-    the targets (k = 2, elbow 10.1 cm). Both rules hold for adult sizes and both legs only. On the
+    the targets (k = 2, elbow 10.1 cm). Both rules hold for adult sizes and both legs only; sized as
+    a child, the crown-to-sole match goes first only when it explains more points by
+    `match_crown_first_margin` (at k = 2 it explains 0.17 more than the legs' 1.26 m, and tried
+    first at a margin of 0.1 the fit misses, a joint 28 cm off). On the
     volume the contours enclose (`voxel_views` off): between the views, k = 1 misses the targets
     otherwise (the whole body low, median 5.3 cm, a wrist 10.0 cm off)."""
     from bodyscan.benchmarks.fit_table import run_one
@@ -1245,6 +1248,25 @@ def test_a_childs_proportions_are_not_a_size_disagreement_or_cut_legs(k):
 
     row = run_one(poses.load_body("child_arms_raised"), f"k{k}", 0.02, FitParams(voxel_views=False), clean=False)
     assert row["outcome"] == "pass", row
+
+
+def test_a_short_adult_is_sized_by_the_match_explaining_more_points():
+    """Body 43 of the corpus of seed 0 (tune62: a stride, 1.29 m), k = 1: under
+    `fit_anchor_min_stature` it is sized as a child, by its legs, which are short for its trunk:
+    1.10 m, whose model explains 0.60 of the points; its crown to sole, 1.31 m, explains 0.89 and
+    was only the first fallback, so the legs' size was fitted (both knees listed, neck 8.3 cm off).
+    Tried first when it explains more points by `match_crown_first_margin`, the fit meets issue
+    4's targets."""
+    pytest.importorskip("torch", reason="the generator needs the 'bodies' extra (torch)")
+    pytest.importorskip("anny", reason="the generator needs the 'bodies' extra (anny)")
+    from bodyscan.benchmarks.fit_table import run_one
+    from bodyscan.poses.sample import sample_body
+
+    body = sample_body(0, 43)
+    off = run_one(body, "k1", 0.01, FitParams(match_crown_first_margin=1.0))
+    assert off["outcome"] not in ("pass", "part"), off    # the case, without the rule
+    row = run_one(body, "k1", 0.01, FitParams())
+    assert row["outcome"] == "pass" and row["max"] < 0.05, row
 
 
 def test_legs_ending_in_feet_are_never_judged_cut():

@@ -103,7 +103,10 @@ The steps, as the paper gives them, with the choices it leaves open (each one a 
    matched too and is the first pose tried when the fit at the legs' size fails its checks: a
    child matched at the first size of 1.5 m can measure its legs from hips placed too low, and at
    the size they give its trunk and head no longer fit; the next pose tried was the first size's,
-   both lower legs listed, knees 18 cm off. Crown to sole is measured over
+   both lower legs listed, knees 18 cm off. It is tried first when its model explains more points
+   than the legs' by `match_crown_first_margin`: a short adult (under `fit_anchor_min_stature`)
+   has legs short for its trunk, and sized from them its trunk and head do not fit (a 1.29 m
+   adult sized 1.10 m from its legs, its neck 8 cm off). Crown to sole is measured over
    the coarse model: where a joint bends (a knee, the head on the trunk) the model's segment before
    it, not the points, sets where the next one hangs, so that segment's unseen part (its length x
    (1 - cos bend)) is taken out of the measured and the model lengths (`recon.posture.match.size_ratios`).

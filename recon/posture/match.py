@@ -649,7 +649,8 @@ def coarse_match(points, scorer, params: FitParams, feet: bool = False) -> list:
     points (`match_explain_distance`) wins; when the legs size the body but crown to sole says
     another size, it is matched at both and the same count decides (`match_size_both`). Returns the
     best pose; for a child sized by its legs while crown to sole differs by more than
-    `match_size_disagree`, its match at the crown-to-sole size; then up to `match_alternatives`
+    `match_size_disagree`, its match at the crown-to-sole size (before the best pose when it explains
+    more points by `match_crown_first_margin`: a short adult's legs); then up to `match_alternatives`
     poses of other torso candidates (turned by more than `match_alt_min_turn` degrees or moved),
     best first.
 
@@ -809,7 +810,15 @@ def coarse_match(points, scorer, params: FitParams, feet: bool = False) -> list:
                or np.linalg.norm(p.centre - q.centre) > 0.5 * params.match_min_anchor_shift for q in seen):
             seen.append(p)
             alts.append(p)
-    out = [pose] + ([second] if second is not None else []) + alts[:max(0, params.match_alternatives)]
+    sizes = [pose] + ([second] if second is not None else [])
+    if second is not None and params.match_size_both and \
+            second.explained > pose.explained + params.match_crown_first_margin:
+        # the points decide between the two sizes, as for adults (`match_size_both`), by a margin (a
+        # child's larger model explains more by nature): a short adult's legs are short for its
+        # trunk and size it far too small (1.29 m sized 1.10 m from its legs explained 0.60 of the
+        # points, crown to sole 0.89)
+        sizes = sizes[::-1]
+    out = sizes + alts[:max(0, params.match_alternatives)]
     for p in out:
         # a leg chain far shorter than its trunk ends where the scan does: its lower leg is not in
         # it, and wherever the match put one (across to the other leg's stump) it lies on other
