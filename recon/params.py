@@ -685,7 +685,7 @@ class FitParams:
                                            # or because the body's proportions are not the standard's, and the
                                            # points tell which (chosen)
     match_crown_first_margin: float = field(default=0.2,  # 2.1: with `match_size_both`: a body sized by its legs as a child
-        metadata={"help": "with match_size_both, a body sized by its legs as a child: its crown-to-sole match is tried first when it explains more than this fraction of the points more (1 = never)", "unit": "", "range": (0, 1)})
+        metadata={"help": "with match_size_both: a child-sized body's crown-to-sole match goes first when it explains this fraction of the points more (1 = never)", "unit": "", "range": (0, 1)})
                                            # (crown to sole under `fit_anchor_min_stature`) whose crown to sole
                                            # disagrees by more than `match_size_disagree` is matched at both sizes;
                                            # the crown-to-sole match is tried first when its model explains more
