@@ -1254,7 +1254,8 @@ def test_a_short_adult_is_sized_by_the_match_explaining_more_points():
     """Body 43 of the corpus of seed 0 (tune62: a stride, 1.29 m), k = 1: under
     `fit_anchor_min_stature` it is sized as a child, by its legs, which are short for its trunk:
     1.10 m, whose model explains 0.60 of the points; its crown to sole, 1.31 m, explains 0.89 and
-    was only the first fallback, so the legs' size was fitted (both knees listed, neck 8.3 cm off).
+    was only the first fallback, so the legs' size was fitted (the right arm, seen, listed unfitted;
+    neck 8.3 cm off).
     Tried first when it explains more points by `match_crown_first_margin`, the fit meets issue
     4's targets."""
     pytest.importorskip("torch", reason="the generator needs the 'bodies' extra (torch)")
