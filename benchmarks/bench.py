@@ -688,13 +688,22 @@ def method_order(names) -> list:
 
 
 def common_cases(table):
-    """The rows of the scans that every method of the table reconstructed (like with like)."""
+    """The rows of the scans that every method of the table reconstructed (like with like).
+
+    A method that reconstructed no scan at all (a broken command; `failed_methods`) is left out
+    of "every method", so that it does not empty the comparison of the others."""
     key = ["body", "preset", "k"]
     ok = table[table["status"] == "ok"]
-    n = table["method"].nunique()
+    n = ok["method"].nunique()
     counts = ok.groupby(key)["method"].nunique()
     keep = counts[counts == n].index
     return ok.set_index(key).loc[lambda t: t.index.isin(keep)].reset_index()
+
+
+def failed_methods(table) -> list[str]:
+    """The methods of the table that failed on every one of their scans, in the table's order."""
+    ok = set(table.loc[table["status"] == "ok", "method"])
+    return [m for m in method_order(table["method"]) if m not in ok]
 
 
 def method_summary(table):
@@ -756,6 +765,9 @@ def summary_table(table) -> str:
     field = field_line(table)
     if field:
         out.append(field)
+    none = failed_methods(table)
+    if none:
+        out.append(f"no result at all (failed on every scan, left out of the comparison): {', '.join(none)}")
     out.append(f"mean over the {n_scans} of {n_all} scans ({common['body'].nunique()} posture(s)) that "
                "every method reconstructed, each posture averaged over its scans; 'worst': the worst "
                "posture. spur%: spurious area %, bridge: area in the air (cm2), P/R/F at 5 mm, "
@@ -834,7 +846,9 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           "## By method", "",
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "
-          "and kept in the per-case table).", "",
+          "and kept in the per-case table)."
+          + (f" {', '.join(failed_methods(table))} failed on every scan and is left out of that."
+             if failed_methods(table) else ""), "",
           "| method | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
           "|---|" + "---:|" * len(metrics)]
     for method, rec in s.iterrows():

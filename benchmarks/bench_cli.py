@@ -42,7 +42,9 @@ def register(sub) -> None:
                     "poisson-trimmed, bpa, alpha, spsr; those not installed are named with the "
                     "reason) and your own methods (--methods, --method-cmd), scored. Prints a "
                     "table (method x metric: mean and worst posture) and writes results.parquet, "
-                    "report.md, run.json and pictures to reports/<run-id>/.")
+                    "report.md, run.json and pictures to reports/<run-id>/. Exits 1 when a method "
+                    "failed on every scan (a scan some methods fail on, such as a refused fit, is "
+                    "listed in the report and left out of the comparison).")
     p.add_argument("--bodies", type=_csv, default=(), metavar="A,B",
                    help="postures: library names, body files or folders of them, e.g. a corpus from "
                         "`poses sample` (default: every shipped posture)")
@@ -173,7 +175,7 @@ def _metric_params(items):
 
 
 def bench_command(args) -> int:
-    from .bench import RECON_METHODS, BenchConfig, run_bench
+    from .bench import RECON_METHODS, BenchConfig, failed_methods, run_bench
 
     from bodyscan._io import check_out
 
@@ -195,8 +197,11 @@ def bench_command(args) -> int:
     result = run_bench(config, args.out, jobs=args.jobs)
     print(result.summary)
     print(f"\nreport: {result.out / 'report.md'}")
-    failed = int((result.table["status"] != "ok").sum())
-    return 1 if failed == len(result.table) else 0
+    none = failed_methods(result.table)
+    for m in none:   # a method with no result at all is broken, not a hard body: the exit says so
+        first = result.table.loc[result.table["method"] == m, "error"].iloc[0]
+        print(f"bodyscan bench: error: method {m} failed on every scan ({first})", file=sys.stderr)
+    return 1 if none else 0
 
 
 def _k(text):

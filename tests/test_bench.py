@@ -382,3 +382,35 @@ def test_shared_times_leave_out_what_no_scan_measured():
     # every method failed: the rows carry no time, and the line says nothing rather than 'nan'
     failed = ok.assign(status="error", time_scan_s=np.nan, time_fit_s=np.nan)
     assert shared_times(failed) == "per scan, shared by its methods: -"
+
+
+def test_a_method_with_no_result_is_left_out_of_the_comparison_not_the_others():
+    """Scans a, b; `ok` reconstructed both, `part` only a, `broken` none: the comparison is over a
+    (what `ok` and `part` share), `broken` is named and left out rather than emptying it."""
+    from bodyscan.benchmarks.bench import common_cases, failed_methods, method_summary
+
+    rows = [dict(body=b, preset="paper", k=1.0, method=m, status="ok", spurious_area_fraction=v)
+            for b, v in (("a", 0.01), ("b", 0.03)) for m in ("ok", "part")]
+    rows[3]["status"] = "error"             # part on b
+    rows += [dict(body=b, preset="paper", k=1.0, method="broken", status="error") for b in "ab"]
+    table = pd.DataFrame(rows)
+    assert failed_methods(table) == ["broken"]
+    common = common_cases(table)
+    assert sorted(common["body"]) == ["a", "a"] and set(common["method"]) == {"ok", "part"}
+    s = method_summary(table)
+    assert s.loc["ok", "spurious_area_fraction"] == pytest.approx(0.01)
+    assert s.loc["broken", "failed"] == 2 and np.isnan(s.loc["broken", "spurious_area_fraction"])
+    assert failed_methods(table[table["method"] != "broken"]) == []
+
+
+def test_bench_exits_1_when_a_method_failed_on_every_scan(tmp_path, capsys):
+    """A command that always fails: the other method's numbers are in the table, the run says
+    which method gave nothing, and the exit status is 1 (a CI job does not pass on it)."""
+    args = ["bench", "--bodies", "standing", "--methods", "simple", "--method-cmd", "broken=false {cloud} {out}",
+            "--scanner", "resolution=0.03", "--metric", "n_samples=2000", "--no-pictures", "--jobs", "1"]
+    assert main(args + ["--out", str(tmp_path / "a")]) == 1
+    out, err = capsys.readouterr()
+    simple = next(line for line in out.splitlines() if line.startswith("simple"))
+    assert any(ch.isdigit() for ch in simple.split()[1])        # simple's spurious area, not '-'
+    assert "method broken failed on every scan" in err
+    assert main(args[:5] + args[7:] + ["--out", str(tmp_path / "b")]) == 0
