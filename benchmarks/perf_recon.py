@@ -6,6 +6,7 @@ Usage::
                                     [--oracle] [--method proposed]
     python -m bodyscan.benchmarks.perf_recon --sweep-tn [--bodies a,b,...] [--factors 0,0.25,...] [--oracle]
     python -m bodyscan.benchmarks.perf_recon --versus [--bodies a,b|DIR] [--resolutions 0.01,0.005,0.002]
+                                    [--closed]
 
 Prints, per scan, the number of points and the best-of-``repeat`` seconds of every stage (the fit's
 stages prefixed ``fit_``, then ``coords``, ``cluster``, ``surface``, ``total``), and the process's
@@ -28,7 +29,10 @@ reported times, normals included) on the same clouds in one run, the three inter
 default the six of ``--sweep-tn``) at each of ``--resolutions`` (`paper` preset, k = 1). It prints
 one line per cloud, then per resolution the median ratios proposed / peer, and the largest
 proposed time over the median (issue 16's targets: faster than Poisson at every resolution, within
-3x of ball pivoting at 10 mm, no body more than 2x the median).
+3x of ball pivoting at 10 mm, no body more than 2x the median). With ``--closed`` it also times the
+whole ``proposed-closed`` reconstruction, interleaved with the others, and prints what the closed
+surface adds over ``proposed`` (issue 15's target: at most 25 %), over the clouds whose fit was not
+refused.
 """
 
 from __future__ import annotations
@@ -58,8 +62,9 @@ def time_scan(points, view_dir, method, fit, repeat):
     return best, rec
 
 
-def versus(bodies, resolutions, repeat: int = 1) -> None:
-    """Print proposed against Poisson depth 9 and ball pivoting on the same clouds (see module doc)."""
+def versus(bodies, resolutions, repeat: int = 1, closed: bool = False) -> None:
+    """Print proposed against Poisson depth 9 and ball pivoting on the same clouds, and with
+    ``closed`` what ``proposed-closed`` adds over ``proposed`` (see module doc)."""
     import numpy as np
 
     from bodyscan.poses import expand_bodies, load_body
@@ -78,16 +83,18 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
         for name in expand_bodies(bodies):
             body = load_body(name)
             s = scan(body, preset("paper", resolution=res))
-            t = {"proposed": np.inf, **{m: np.inf for m in peers}}
+            ours = ("proposed", "proposed-closed") if closed else ("proposed",)
+            t = {**{m: np.inf for m in ours}, **{m: np.inf for m in peers}}
             refused = ""
             for _ in range(repeat):
-                start = time.perf_counter()
-                try:
-                    times, _ = time_scan(s.points, s.view_dir, "proposed", None, 1)
-                    took = times["total"]
-                except ReconError as e:   # a refused fit is timed too: the user waited for it
-                    took, refused = time.perf_counter() - start, f" (refused: {e})"
-                t["proposed"] = min(t["proposed"], took)
+                for m in ours:
+                    start = time.perf_counter()
+                    try:
+                        times, _ = time_scan(s.points, s.view_dir, m, None, 1)
+                        took = times["total"]
+                    except ReconError as e:   # a refused fit is timed too: the user waited for it
+                        took, refused = time.perf_counter() - start, f" (refused: {e})"
+                    t[m] = min(t[m], took)
                 for m in peers:
                     with warnings.catch_warnings():
                         warnings.simplefilter("ignore")
@@ -95,7 +102,9 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
             rows[res].append(t)
             print(f"{res * 1000:4.0f} mm {body.name:>24s} {len(s.points):7d} points | "
                   + " ".join(f"{m} {v:6.2f} s" for m, v in t.items()) + " | "
-                  + " ".join(f"/{m} {t['proposed'] / t[m]:5.2f}" for m in peers) + refused, flush=True)
+                  + " ".join(f"/{m} {t['proposed'] / t[m]:5.2f}" for m in peers)
+                  + (f" | closed +{100 * (t['proposed-closed'] / t['proposed'] - 1):.0f} %" if closed else "")
+                  + refused, flush=True)
             t["refused"] = bool(refused)
     for res, rs in rows.items():
         prop = np.array([r["proposed"] for r in rs])
@@ -105,6 +114,10 @@ def versus(bodies, resolutions, repeat: int = 1) -> None:
         print(f"SUMMARY {res * 1000:.0f} mm, {len(rs)} clouds ({n_refused} refused, timed until refused): "
               f"proposed median {np.median(prop):.2f} s, "
               f"max {prop.max():.2f} s = {prop.max() / np.median(prop):.2f}x the median | {ratios}")
+        added = [r["proposed-closed"] / r["proposed"] - 1 for r in rs if closed and not r["refused"]]
+        if added:
+            print(f"SUMMARY {res * 1000:.0f} mm, proposed-closed over proposed, {len(added)} fitted clouds: "
+                  f"median +{100 * np.median(added):.0f} %, max +{100 * max(added):.0f} %")
 
 
 def sweep_tn(bodies, factors, oracle: bool, name: str = "t_n_factor", method: str = "proposed",
@@ -174,15 +187,19 @@ def main(argv=None) -> int:
                     help="a reconstruction parameter set in every run of the sweeps (repeatable)")
     ap.add_argument("--versus", action="store_true",
                     help="time proposed beside Poisson depth 9 and ball pivoting on the same clouds")
+    ap.add_argument("--closed", action="store_true",
+                    help="with --versus: also time proposed-closed, and print what it adds over proposed")
     ap.add_argument("--resolutions", type=values(float, positive=True), default="0.01,0.005,0.002",
                     help="scan resolutions of --versus, metres, comma-separated")
     ap.add_argument("--factors", type=values(float), default="0,0.1,0.25,0.5,0.75,1,1.5,1000",
                     help="values of --sweep-tn / --sweep, comma-separated (T_n factor 1000: always split)")
     args = ap.parse_args(argv)
+    if args.closed and not args.versus:
+        ap.error("--closed times proposed-closed beside proposed in --versus")
     if args.param and not (args.sweep_tn or args.sweep):
         ap.error("--param sets the sweeps' runs (--sweep, --sweep-tn); the timings run the defaults")
     if args.versus:
-        versus(args.bodies.split(","), args.resolutions, args.repeat)
+        versus(args.bodies.split(","), args.resolutions, args.repeat, args.closed)
         return 0
     if args.sweep_tn or args.sweep:
         sweep_tn(args.bodies.split(","), args.factors, args.oracle, args.sweep or "t_n_factor",

@@ -289,6 +289,35 @@ def test_perf_recon_versus_times_a_refused_fit_and_goes_on(monkeypatch, capsys):
     assert "2 clouds (2 refused, timed until refused)" in out
 
 
+def test_perf_recon_versus_closed_says_what_the_closed_surface_adds(monkeypatch, capsys):
+    # proposed 2 s and proposed-closed 2.5 s on standing (+25 %), 3 s on t_pose (+50 %); squat's
+    # fit refused: timed, but left out of what the closed surface adds
+    from bodyscan.benchmarks import peers, perf_recon
+    from bodyscan.recon import ReconError
+
+    seconds = {"standing": (2.0, 2.5), "t_pose": (2.0, 3.0)}
+
+    def timed(points, view_dir, method, fit, repeat):
+        n = len(points)
+        if n not in sizes:
+            raise ReconError("the cloud does not look like a human body")
+        return {"total": sizes[n][method == "proposed-closed"]}, None
+
+    from bodyscan.poses import load_body
+    from bodyscan.simulator import preset, scan
+
+    sizes = {len(scan(load_body(b), preset("paper", resolution=0.02)).points): v for b, v in seconds.items()}
+    monkeypatch.setattr(perf_recon, "time_scan", timed)
+    monkeypatch.setattr(peers, "available_peers", lambda: ["poisson", "bpa"])
+    monkeypatch.setattr(peers, "reconstruct_peer", lambda m, p, v: (None, None, {"total": 1.0}))
+    perf_recon.versus(["standing", "t_pose", "squat"], [0.02], closed=True)
+    out = capsys.readouterr().out
+    assert out.count("closed +25 %") == 1 and out.count("closed +50 %") == 1
+    assert "proposed-closed over proposed, 2 fitted clouds: median +38 %, max +50 %" in out
+    perf_recon.versus(["standing"], [0.02])
+    assert "closed" not in capsys.readouterr().out
+
+
 def test_perf_recon_times_every_run_from_the_raw_cloud(monkeypatch):
     # a repeated timing of one cloud prepares it (outliers, noise) every time, not from a cache
     from bodyscan.benchmarks import perf_recon

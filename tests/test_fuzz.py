@@ -563,6 +563,7 @@ SCRIPT_CASES = [
     ("perf_recon", ["--sweep-tn", "--factors", "abc"], "is not a float"),
     ("perf_recon", ["--versus", "--resolutions", "-0.01"], "must be positive"),
     ("perf_recon", ["--param", "t_d=0.3"], "sets the sweeps"),
+    ("perf_recon", ["--closed"], "beside proposed in --versus"),
     ("perf_recon", ["--body", "nosuch"], "no such file"),
     ("perf_simulator", ["--body", "nosuch"], "no such file"),
     ("perf_simulator", ["--resolution", "-0.01"], "must be positive"),
