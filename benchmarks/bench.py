@@ -363,6 +363,16 @@ def evaluate(body, scan, method: str, params=None, *, metric_params: MetricParam
 # the run
 
 
+def _once(what: str, items) -> None:
+    """Raise `BenchError` naming the first item given twice (its scans would run twice, their rows
+    duplicated under one key)."""
+    seen = set()
+    for item in items:
+        if item in seen:
+            raise BenchError(f"{what}: {item} is given twice")
+        seen.add(item)
+
+
 @dataclass(frozen=True)
 class BenchConfig:
     """What `run_bench` runs.
@@ -406,6 +416,7 @@ class BenchConfig:
         bodies = tuple(expand_bodies(self.bodies))  # a folder (a corpus) gives its body files
         if not bodies:
             raise BenchError("no postures: the pose library is empty and --bodies names none")
+        _once("postures", bodies)
         for b in bodies:
             load_body(b).require_ground_truth("the benchmark")
         from .methods import installed_methods, resolve
@@ -431,6 +442,8 @@ class BenchConfig:
                              "(recon parameters are for proposed and simple)")
         if not self.ks or any(not 0 < float(k) < 6 for k in self.ks):
             raise BenchError(f"k values must be in (0, 6) (laser angle k * 15 degrees), got {self.ks}")
+        _once("k values", [f"{float(k):g}" for k in self.ks])
+        _once("presets", self.presets)
         from bodyscan import simulator
 
         for p in self.presets:

@@ -209,6 +209,12 @@ def test_bench_rejects_bad_options():
     with pytest.raises(BenchError, match="k values"):
         BenchConfig(bodies=("standing",), ks=(0,), methods=("simple",)).resolved()
     assert main(["bench", "--bodies", "no_such_body", "--no-peers"]) == 2
+    # a case given twice would be run twice, its rows duplicated under one key
+    for twice, match in (({"ks": (1, 1.0)}, "k values: 1 is given twice"),
+                         ({"bodies": ("standing", "standing")}, "postures: standing is given twice"),
+                         ({"presets": ("paper", "paper")}, "presets: paper is given twice")):
+        with pytest.raises(BenchError, match=match):
+            BenchConfig(**{"bodies": ("standing",), "methods": ("simple",), **twice}).resolved()
     assert set(METHODS) >= {"proposed", "simple", "proposed-closed", "poisson", "bpa", "spsr"}
 
 
