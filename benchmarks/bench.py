@@ -860,7 +860,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "
           "and kept in the per-case table)."
-          + (f" {', '.join(failed_methods(table))} failed on every scan and is left out of that."
+          + (f" Left out of it, as they failed on every scan: {', '.join(failed_methods(table))}."
              if failed_methods(table) else ""), "",
           "| method | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
           "|---|" + "---:|" * len(metrics)]
