@@ -443,7 +443,8 @@ class SurfaceParams:
                 "view) instead of around a column on their principal axis",
         "unit": "", "range": (False, True)})
     close_voxel: float = field(default=0.008, metadata={
-        "help": "proposed-closed: grid step of the closed surface (recon.surface.closed.closed_surface)",
+        "help": "proposed-closed: grid step of the closed surface, at least the points' median spacing "
+                "(recon.surface.closed.closed_surface)",
         "unit": "m", "range": (0.001, 0.05)})
     close_cell: float = field(default=1.5, metadata={
         "help": "proposed-closed: cell size of the sections' radial height fields",
