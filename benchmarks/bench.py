@@ -843,6 +843,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
                     skipped: dict | None = None) -> str:
     """The ``report.md`` text."""
     s = method_summary(table)
+    none = failed_methods(table)
     registration = registration_line(table)
     field = field_line(table)
     metrics = [m for m in TABLE if m in s.columns]
@@ -860,8 +861,7 @@ def report_markdown(table, config: BenchConfig, summary: str, pictures: list, pi
           "Mean over postures (each posture averaged over its scans); below, the worst posture. "
           "Only the scans that every method reconstructed count here (failures are listed below "
           "and kept in the per-case table)."
-          + (f" Left out of it, as they failed on every scan: {', '.join(failed_methods(table))}."
-             if failed_methods(table) else ""), "",
+          + (f" Left out of it, as they failed on every scan: {', '.join(none)}." if none else ""), "",
           "| method | " + " | ".join(TABLE[m][0] for m in metrics) + " |",
           "|---|" + "---:|" * len(metrics)]
     for method, rec in s.iterrows():
